@@ -240,8 +240,12 @@ def _png_with_filters(pixels, filters):
 
 @pytest.mark.parametrize("bpp", [3, 4])
 def test_read_png_undoes_every_filter_type(tmp_path, bpp):
-    pixels = np.random.default_rng(5).integers(0, 256, (10, 6, bpp), dtype=np.uint8)
-    filters = [0, 1, 2, 3, 4, 4, 3, 2, 1, 0]
+    rng = np.random.default_rng(5)
+    # full-range noise (wrap-around mod 256) and four small levels (Paeth ties)
+    noise = rng.integers(0, 256, (10, 6, bpp), dtype=np.uint8)
+    levels = rng.integers(0, 4, (10, 6, bpp)).astype(np.uint8)
+    pixels = np.concatenate([noise, levels])
+    filters = [0, 1, 2, 3, 4, 4, 3, 2, 1, 0] + [4] * 10
     (tmp_path / "f.png").write_bytes(_png_with_filters(pixels, filters))
     np.testing.assert_array_equal(io.read_png(tmp_path / "f.png"), pixels)
 
