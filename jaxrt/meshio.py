@@ -14,7 +14,8 @@ OBJ / MTL (values read from the MTL as trimesh parses it, exact floats):
     ``illum`` 3 or 5 with ``Kd = 0``.
   - energy: ``kd + ks ≤ 1`` per channel is enforced by scaling both by ``1 / max(kd + ks)``,
     with a warning; a negative ``Ns`` becomes 0, with a warning.
-  - no material: grey diffuse ``kd = 0.5``. ``map_Kd`` textures are ignored, with a warning.
+  - ``map_Kd`` textures, transparency (``d`` < 1, ``Tr`` > 0) and refraction (``illum`` 4, 6,
+    7, 9) are not modelled: ignored, with a warning.
 glTF / GLB (factors read from the file's JSON: exact, and trimesh drops the extension):
   - ``metallicFactor < 0.5``: ``"diffuse"``, ``kd = baseColorFactor.rgb``;
     otherwise ``"conductor"`` with ``ks = baseColorFactor.rgb`` and ``alpha = roughness²``
@@ -22,9 +23,10 @@ glTF / GLB (factors read from the file's JSON: exact, and trimesh drops the exte
     Missing factors take the glTF defaults (base colour 1, metallic 1, roughness 1).
   - ``emission = emissiveFactor × KHR_materials_emissive_strength.emissiveStrength`` (radiance).
   - ``two_sided_emission = doubleSided``. Textures are ignored, with a warning.
-PLY: geometry only; grey diffuse ``kd = 0.5``, unless the file has vertex (or face) colours:
-  then ``kd`` is their mean, decoded from 8-bit sRGB to linear, with a warning when they vary
-  (one albedo per mesh: per-vertex colour is not modelled).
+PLY, and any geometry without a material (OBJ without MTL, glTF primitive without material):
+  grey diffuse ``kd = 0.5``, unless the file has vertex (or face) colours: then ``kd`` is their
+  mean, decoded from 8-bit sRGB to linear, with a warning when they vary (one albedo per mesh:
+  per-vertex colour is not modelled).
 OBJ has no two-sided emitters: ``two_sided_emission = False``.
 
 Nothing is dropped silently: degenerate triangles (a repeated index or zero area) are removed
@@ -188,6 +190,10 @@ def _mtl_material(where: str, mat) -> MaterialSpec:
     if getattr(mat, "image", None) is not None:
         _warn(f"{where}: texture map_Kd ignored, using Kd")
     illum = int(_floats(where, "illum", raw["illum"])[0]) if "illum" in raw else None
+    dissolve = float(_floats(where, "d", raw["d"])[0]) if "d" in raw else 1.0
+    transmit = float(_floats(where, "Tr", raw["tr"])[0]) if "tr" in raw else 0.0
+    if illum in (4, 6, 7, 9) or dissolve < 1 or transmit > 0:
+        _warn(f"{where}: transparency/refraction (d, Tr, illum {illum}) ignored: opaque")
     if illum in (3, 5) and not kd.any() and ks.any():
         ks = np.clip(ks, 0, 1)
         return MaterialSpec("mirror", kd=np.zeros(3), ks=ks, emission=ke)
