@@ -256,7 +256,13 @@ def _gltf_entry_for(where: str, mat, entries: list[dict]) -> dict | None:
         same_emissive = np.allclose(
             entry.get("emissiveFactor", [0.0] * 3), [0.0] * 3 if emissive is None else emissive
         )
-        return entry.get("name") == getattr(mat, "name", None) and same_base and same_emissive
+        # trimesh keeps these scalars as given (None when the JSON omits them)
+        same_scalars = all(
+            getattr(mat, key, None) in (None, pbr.get(key)) or pbr.get(key) is None
+            for key in ("metallicFactor", "roughnessFactor")
+        )
+        same_name = entry.get("name") == getattr(mat, "name", None)
+        return same_name and same_base and same_emissive and same_scalars
 
     found = [e for e in entries if matches(e)]
     specs = {json.dumps(e, sort_keys=True, default=str) for e in found}

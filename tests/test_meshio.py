@@ -415,3 +415,25 @@ def test_material_spec_validation():
     for kwargs in bad:
         with pytest.raises(ValueError):
             MaterialSpec(**kwargs)
+
+
+def test_glb_unnamed_materials_matched_by_factors(tmp_path):
+    # two unnamed materials with the same base colour, told apart by metallic/roughness
+    a, b = trimesh.creation.box(), trimesh.creation.box()
+    b.apply_translation([3.0, 0.0, 0.0])
+    a.visual = TextureVisuals(
+        material=PBRMaterial(baseColorFactor=[0.5] * 3 + [1.0], metallicFactor=0.0)
+    )
+    b.visual = TextureVisuals(
+        material=PBRMaterial(
+            baseColorFactor=[0.5] * 3 + [1.0], metallicFactor=1.0, roughnessFactor=0.5
+        )
+    )
+    (tmp_path / "u.glb").write_bytes(trimesh.Scene([a, b]).export(file_type="glb"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an unambiguous match: no warning
+        meshes = load_meshes(tmp_path / "u.glb")
+    kinds = {m.material.kind: m for m in meshes}
+    assert set(kinds) == {"diffuse", "conductor"}
+    assert kinds["conductor"].vertices[:, 0].min() == 2.5  # the translated box
+    assert kinds["conductor"].material.alpha == 0.25  # 0.5²
