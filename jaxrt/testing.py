@@ -36,6 +36,7 @@ means of multivariate normal distributions", JASA 1967.
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -88,6 +89,7 @@ class Chi2Result(NamedTuple):
         integral: ∫ pdf dμ over the domain; quadrature_error: its estimated error.
         num_outside: samples outside the domain (NaN/inf included);
         num_leaked: samples in zero-pdf cells.
+        num_samples, domain, axis_names: N, the domain's name and its cell axes.
     """
 
     passed: bool
@@ -105,6 +107,7 @@ class Chi2Result(NamedTuple):
     num_leaked: int
     num_samples: int
     domain: str
+    axis_names: tuple[str, str] = ("s1", "s2")
 
     def summary(self) -> str:
         """A few lines: verdict, each table's χ², dof and p-value, and the messages."""
@@ -186,12 +189,19 @@ def _uniform_chunk(key, chunk: int, sample_dim: int, dtype):
     return jax.random.uniform(key, (chunk, sample_dim), dtype)
 
 
-def _histogram(sample_fn, domain: Domain, shape, num_samples, sample_dim, seed, dtype):
-    """Counts per cell (n1, n2) and the number of samples outside the domain."""
-    n1, n2 = shape
+def _cached(builder, *args):
+    """``builder(*args)`` through its LRU cache, or uncached for unhashable callables."""
+    try:
+        return builder(*args)
+    except TypeError:
+        return builder.__wrapped__(*args)
+
+
+@functools.lru_cache(maxsize=64)
+def _cell_indexer(sample_fn, domain: Domain, n1: int, n2: int):
+    """Jitted ``u (chunk, dim) -> cell index`` (n1·n2 marks outside); cached so that repeated
+    tests of the same sampler (other seeds, sizes) compile nothing new."""
     num_cells = n1 * n2
-    chunk = SAMPLE_CHUNK
-    num_chunks = -(-num_samples // chunk)
 
     def cell_index(u):
         x = jnp.asarray(sample_fn(u))
@@ -203,7 +213,16 @@ def _histogram(sample_fn, domain: Domain, shape, num_samples, sample_dim, seed, 
         j = jnp.clip(jnp.floor(s[1] * n2).astype(jnp.int32), 0, n2 - 1)
         return jnp.where(ok, i * n2 + j, num_cells)
 
-    cell_indices = jax.jit(jax.vmap(cell_index))
+    return jax.jit(jax.vmap(cell_index))
+
+
+def _histogram(sample_fn, domain: Domain, shape, num_samples, sample_dim, seed, dtype):
+    """Counts per cell (n1, n2) and the number of samples outside the domain."""
+    n1, n2 = shape
+    num_cells = n1 * n2
+    chunk = SAMPLE_CHUNK
+    num_chunks = -(-num_samples // chunk)
+    cell_indices = _cached(_cell_indexer, sample_fn, domain, n1, n2)
     key = jax.random.key(seed)
     counts = np.zeros(num_cells + 1, np.int64)
     for c in range(num_chunks):  # a few chunks of 2^17 samples, not a loop over samples
@@ -230,6 +249,7 @@ def _rect_rule(order: int):
     return coarse_x, coarse_w, fine_x, fine_w
 
 
+@functools.lru_cache(maxsize=64)
 def _make_rect_integrator(pdf_fn, domain: Domain, dtype, order: int, chunk: int):
     """Jitted ``rects (chunk, 4) -> (coarse, fine, min pdf, any non-finite)`` integrals."""
     coarse_x, coarse_w, fine_x, fine_w = (jnp.asarray(a, dtype) for a in _rect_rule(order))
@@ -269,7 +289,7 @@ def _integrate_cells(pdf_fn, domain: Domain, shape, num_samples, dtype, order=4,
     Returns (probabilities (n1, n2) float64, total error estimate, min pdf, non-finite flag).
     """
     n1, n2 = shape
-    integrate, chunk = _make_rect_integrator(pdf_fn, domain, dtype, order, chunk)
+    integrate, chunk = _cached(_make_rect_integrator, pdf_fn, domain, dtype, order, chunk)
     e1, e2 = np.linspace(0, 1, n1 + 1), np.linspace(0, 1, n2 + 1)
     i, j = np.meshgrid(np.arange(n1), np.arange(n2), indexing="ij")
     rects = np.stack([e1[i], e1[i + 1], e2[j], e2[j + 1]], -1).reshape(-1, 4)
@@ -403,7 +423,7 @@ def chi2_test(sample_fn, pdf_fn, domain, *, num_samples: int = 1_000_000,
     main = tables[0]
     return Chi2Result(passed, main.statistic, main.dof, main.p_value, observed, expected,
                       significance, messages, tuple(tables), integral, quad_err,
-                      num_outside, num_leaked, n, dom.name)
+                      num_outside, num_leaked, n, dom.name, dom.axis_names)
 
 
 def plot_chi2(result: Chi2Result, path) -> None:
@@ -430,8 +450,8 @@ def plot_chi2(result: Chi2Result, path) -> None:
         im = ax.imshow(data.T, origin="lower", aspect="auto", cmap=cmap, vmin=lo, vmax=hi,
                        extent=(0, 1, 0, 1))
         ax.set_title(title)
-        ax.set_xlabel("s1")
-        ax.set_ylabel("s2")
+        ax.set_xlabel(result.axis_names[0])
+        ax.set_ylabel(result.axis_names[1])
         fig.colorbar(im, ax=ax)
     fig.suptitle(result.summary().splitlines()[0], fontsize=9)
     fig.savefig(path, dpi=100)
