@@ -23,7 +23,8 @@ Floating-point notes (why this is watertight under XLA):
   exactly antisymmetric. The result has the sign of the exact real edge function unless
   ``|e| ≲ 2^-35 · |a b|`` (about what pbrt's double fallback gives), and the two triangles that
   share an edge compute exact negations, so a ray through an edge is never lost.
-  In float64 the same split is exact but for ``a_lo·b_lo`` (rounded at 2^-106 relative).
+  In float64 the split rounds instead of truncating so that every partial product is exact
+  too (with truncation ``a_lo·b_lo`` rounded and rays aimed exactly at vertices leaked).
 - Hits with ``t ≤ 0`` are rejected by pbrt's conservative bound ``δt`` on the rounding error of
   ``t`` (pbrt-v4 §6.8.4), not by a fixed epsilon; degenerate (zero-area) triangles never hit.
 """
@@ -33,6 +34,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array, lax
 
 from jaxrt.vecmath import cross, dot
@@ -70,24 +72,34 @@ class Hit(NamedTuple):
 class RayFrame(NamedTuple):
     """Per-ray part of the watertight test, computed once and reused for every triangle.
 
+    All fields are scalars (shape ``()``), so that under ``vmap`` each is one contiguous
+    vector: XLA:CPU is ~100× slower on ``(N, 3)`` arrays sliced along the minor axis.
+
     Attributes:
-        origin: (3,) ray origin.
-        kz: () int32 axis of the largest ``|d|`` component (becomes z); kx = kz+1, ky = kz+2 mod 3.
-        shear: (3,) ``(S_x, S_y, S_z) = (−d_x/d_z, −d_y/d_z, 1/d_z)`` in the permuted frame.
-        valid: () bool, False for a zero (or non-finite) direction, which hits nothing.
+        ox, oy, oz: ray origin permuted to ``(o[kx], o[ky], o[kz])``.
+        sx, sy, sz: shear ``(−d_x/d_z, −d_y/d_z, 1/d_z)`` in the permuted frame.
+        kz0, kz1: bool, ``kz == 0`` and ``kz == 1`` (``kz`` the axis of the largest ``|d|``;
+            kx = kz+1, ky = kz+2 mod 3).
+        valid: bool, False for a zero or non-finite direction, which hits nothing.
     """
 
-    origin: Array
-    kz: Array
-    shear: Array
+    ox: Array
+    oy: Array
+    oz: Array
+    sx: Array
+    sy: Array
+    sz: Array
+    kz0: Array
+    kz1: Array
     valid: Array
 
 
-def _permute(v: Array, kz: Array) -> Array:
-    """Components ``(v[kx], v[ky], v[kz])`` with ``kx = kz+1, ky = kz+2 (mod 3)``; no gather."""
-    # selects instead of indexing: under vmap a per-ray gather is much slower than two selects
-    return jnp.where(kz == 0, v[jnp.array([1, 2, 0])],
-                     jnp.where(kz == 1, v[jnp.array([2, 0, 1])], v))
+def _permute(x: Array, y: Array, z: Array, kz0: Array, kz1: Array) -> tuple[Array, Array, Array]:
+    """Components ``(v[kx], v[ky], v[kz])`` with ``kx = kz+1, ky = kz+2 (mod 3)``, by selects."""
+    # selects, not a gather: under vmap a per-ray gather is far slower than two selects
+    return (jnp.where(kz0, y, jnp.where(kz1, z, x)),
+            jnp.where(kz0, z, jnp.where(kz1, x, y)),
+            jnp.where(kz0, x, jnp.where(kz1, y, z)))
 
 
 def ray_frame(origin: Array, direction: Array) -> RayFrame:
@@ -99,28 +111,33 @@ def ray_frame(origin: Array, direction: Array) -> RayFrame:
     Returns:
         The :class:`RayFrame`; ``valid`` is False when ``direction`` is zero or not finite.
     """
-    a = jnp.abs(direction)
+    ax, ay, az = jnp.abs(direction[0]), jnp.abs(direction[1]), jnp.abs(direction[2])
     # pbrt's MaxComponentIndex: ties resolved the same way for every triangle
-    kz = jnp.where(a[0] > a[1], jnp.where(a[0] > a[2], 0, 2),
-                   jnp.where(a[1] > a[2], 1, 2)).astype(jnp.int32)
-    d = _permute(direction, kz)
-    valid = (d[2] != 0) & jnp.all(jnp.isfinite(direction))
+    kz0 = (ax > ay) & (ax > az)
+    kz1 = ~kz0 & (ay > az)
+    dx, dy, dz = _permute(direction[0], direction[1], direction[2], kz0, kz1)
+    ox, oy, oz = _permute(origin[0], origin[1], origin[2], kz0, kz1)
+    valid = (dz != 0) & jnp.all(jnp.isfinite(direction))
     # the largest |component| is non-zero for any non-zero direction: no division by zero
-    dz = jnp.where(valid, d[2], jnp.ones_like(d[2]))
-    shear = jnp.stack([-d[0] / dz, -d[1] / dz, 1 / dz])
-    return RayFrame(origin, kz, shear, valid)
+    dz = jnp.where(valid, dz, jnp.ones_like(dz))
+    return RayFrame(ox, oy, oz, -dx / dz, -dy / dz, 1 / dz, kz0, kz1, valid)
 
 
 def _split(a: Array) -> tuple[Array, Array]:
-    """Error-free split ``a = hi + lo`` with hi, lo holding about half the significand each.
+    """Error-free split ``a = hi + lo``, each part short enough that products are exact.
 
-    ``hi`` is ``a`` with the low half of its stored significand bits cleared (12 of 23 in
-    float32, 27 of 52 in float64); ``lo = a − hi`` is exact (Sterbenz). Pure bit masking, so
-    no compiler contraction can alter it (unlike Dekker's ``c − (c − a)`` split).
+    float32: ``hi`` is ``a`` with the low 12 of its 23 stored significand bits cleared, so hi
+    and ``lo = a − hi`` (exact) have ≤ 12 significant bits and any product of parts fits in 24.
+    float64: ``|a|`` is first rounded to 26 bits (add half a unit of the 27th bit to the bit
+    pattern, then clear the low 27), so hi and lo have ≤ 26 bits and products fit in 52 (a
+    truncating split would leave a 27-bit lo whose square rounds). Pure integer operations on
+    the bit pattern, so no compiler contraction can alter them (unlike Dekker's ``c − (c − a)``).
     """
     if a.dtype == jnp.float64:
         bits = lax.bitcast_convert_type(a, jnp.uint64)
-        hi_bits = bits & jnp.asarray(0xFFFFFFFFF8000000, jnp.uint64)
+        # rounding |a| to nearest at bit 27 (a carry into the exponent is still exact)
+        hi_bits = ((bits + jnp.asarray(1 << 26, jnp.uint64))
+                   & jnp.asarray(0xFFFFFFFFF8000000, jnp.uint64))
     else:
         bits = lax.bitcast_convert_type(a, jnp.uint32)
         hi_bits = bits & jnp.asarray(0xFFFFF000, jnp.uint32)
@@ -141,37 +158,42 @@ def _edge(ax: tuple, ay: tuple, bx: tuple, by: tuple) -> Array:
     return (high + mid) + low
 
 
-def _sheared(v: Array, frame: RayFrame) -> Array:
+def _sheared(v: Array, f: RayFrame) -> tuple[Array, Array, Array]:
     """Vertex ``v`` in the ray's sheared frame: ``(x + S_x z, y + S_y z, z)`` (z not yet scaled)."""
-    p = _permute(v - frame.origin, frame.kz)
-    return jnp.stack([p[0] + frame.shear[0] * p[2], p[1] + frame.shear[1] * p[2], p[2]])
+    x, y, z = _permute(v[0], v[1], v[2], f.kz0, f.kz1)
+    x, y, z = x - f.ox, y - f.oy, z - f.oz
+    return x + f.sx * z, y + f.sy * z, z
 
 
-def intersect_triangle_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array,
-                             t_max: Array) -> tuple[Array, Array, Array]:
-    """:func:`intersect_triangle` for a ray already set up by :func:`ray_frame`.
+def _max3(a: Array, b: Array, c: Array) -> Array:
+    return jnp.maximum(jnp.maximum(a, b), c)
 
-    The brute-force and BVH loops call this so that the per-ray permutation and shear are
-    computed once, not once per triangle. Degenerate triangles are *not* rejected here beyond
-    ``det == 0`` (a sheared sliver can have ``det ≠ 0``); callers that precompute a
-    per-triangle validity flag (``TriangleSet``) reject them with it.
-    """
-    dtype = frame.shear.dtype
-    zero = jnp.zeros((), dtype)
-    inf = jnp.asarray(jnp.inf, dtype)
-    p0, p1, p2 = _sheared(v0, frame), _sheared(v1, frame), _sheared(v2, frame)
+
+class _Raw(NamedTuple):
+    """Unmasked results of the watertight test (internal)."""
+
+    hit: Array
+    t: Array
+    b1: Array
+    b2: Array
+
+
+def _intersect_raw(frame: RayFrame, v0: Array, v1: Array, v2: Array, t_max: Array) -> _Raw:
+    """The watertight test; ``b1, b2, t`` are valid only where ``hit`` (never NaN)."""
+    dtype = frame.sz.dtype
+    (x0, y0, z0), (x1, y1, z1), (x2, y2, z2) = (_sheared(v0, frame), _sheared(v1, frame),
+                                                _sheared(v2, frame))
     # 2D edge functions, each from the same split coordinates whichever triangle shares the edge
-    s0 = (_split(p0[0]), _split(p0[1]))
-    s1 = (_split(p1[0]), _split(p1[1]))
-    s2 = (_split(p2[0]), _split(p2[1]))
-    e0 = _edge(s1[0], s1[1], s2[0], s2[1])
-    e1 = _edge(s2[0], s2[1], s0[0], s0[1])
-    e2 = _edge(s0[0], s0[1], s1[0], s1[1])
+    sx0, sy0, sx1, sy1, sx2, sy2 = (_split(x0), _split(y0), _split(x1), _split(y1),
+                                    _split(x2), _split(y2))
+    e0 = _edge(sx1, sy1, sx2, sy2)
+    e1 = _edge(sx2, sy2, sx0, sy0)
+    e2 = _edge(sx0, sy0, sx1, sy1)
     # inside iff all edge functions share a sign (zeros count as either: edges are shared)
     inside = ~(((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0)))
     det = e0 + e1 + e2
     # scaled hit distance, compared against t_max without dividing
-    z0, z1, z2 = frame.shear[2] * p0[2], frame.shear[2] * p1[2], frame.shear[2] * p2[2]
+    z0, z1, z2 = frame.sz * z0, frame.sz * z1, frame.sz * z2
     t_scaled = e0 * z0 + e1 * z1 + e2 * z2
     in_range = jnp.where(det < 0, (t_scaled < 0) & (t_scaled >= t_max * det),
                          (t_scaled > 0) & (t_scaled <= t_max * det))
@@ -179,19 +201,56 @@ def intersect_triangle_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array,
     inv_det = 1 / safe_det
     t = t_scaled * inv_det
     # conservative rounding-error bound δt on t (pbrt-v4 §6.8.4): reject t ≤ δt, not t ≤ ε
-    max_zt = jnp.maximum(jnp.maximum(jnp.abs(z0), jnp.abs(z1)), jnp.abs(z2))
-    max_xt = jnp.maximum(jnp.maximum(jnp.abs(p0[0]), jnp.abs(p1[0])), jnp.abs(p2[0]))
-    max_yt = jnp.maximum(jnp.maximum(jnp.abs(p0[1]), jnp.abs(p1[1])), jnp.abs(p2[1]))
+    max_zt = _max3(jnp.abs(z0), jnp.abs(z1), jnp.abs(z2))
+    max_xt = _max3(jnp.abs(x0), jnp.abs(x1), jnp.abs(x2))
+    max_yt = _max3(jnp.abs(y0), jnp.abs(y1), jnp.abs(y2))
     delta_z = gamma(3, dtype) * max_zt
     delta_x = gamma(5, dtype) * (max_xt + max_zt)
     delta_y = gamma(5, dtype) * (max_yt + max_zt)
     delta_e = 2 * (gamma(2, dtype) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt)
-    max_e = jnp.maximum(jnp.maximum(jnp.abs(e0), jnp.abs(e1)), jnp.abs(e2))
+    max_e = _max3(jnp.abs(e0), jnp.abs(e1), jnp.abs(e2))
     delta_t = 3 * (gamma(3, dtype) * max_e * max_zt + delta_e * max_zt
                    + delta_z * max_e) * jnp.abs(inv_det)
     hit = frame.valid & inside & (det != 0) & in_range & (t > delta_t)
-    return (jnp.where(hit, t, inf), jnp.where(hit, e1 * inv_det, zero),
-            jnp.where(hit, e2 * inv_det, zero))
+    return _Raw(hit, t, e1 * inv_det, e2 * inv_det)
+
+
+def intersect_triangle_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array,
+                             t_max: Array) -> tuple[Array, Array, Array]:
+    """:func:`intersect_triangle` for a ray already set up by :func:`ray_frame`.
+
+    The brute-force and BVH loops use this so that the per-ray permutation and shear are
+    computed once, not once per triangle. Degenerate triangles are *not* rejected here beyond
+    ``det == 0`` (a sheared sliver of a zero-area triangle can have ``det ≠ 0``); callers
+    reject them with a per-triangle flag precomputed on the host (``TriangleSet.valid``).
+    Returns ``(t, b1, b2)``, ``t = inf`` and ``b1 = b2 = 0`` on a miss.
+    """
+    r = _intersect_raw(frame, v0, v1, v2, t_max)
+    zero = jnp.zeros_like(r.t)
+    return (jnp.where(r.hit, r.t, jnp.asarray(jnp.inf, r.t.dtype)),
+            jnp.where(r.hit, r.b1, zero), jnp.where(r.hit, r.b2, zero))
+
+
+def intersect_triangle_t(frame: RayFrame, v0: Array, v1: Array, v2: Array,
+                         t_max: Array) -> Array:
+    """Hit distance only (``inf`` on a miss): the form for loops over many triangles.
+
+    A loop body with one output compiles to one fused kernel; returning ``b1, b2`` too made
+    XLA:CPU duplicate the whole test into one fusion per output (measured 4–7× slower).
+    Recover the barycentrics of the winner afterwards with :func:`intersect_triangle_frame`.
+    """
+    r = _intersect_raw(frame, v0, v1, v2, t_max)
+    return jnp.where(r.hit, r.t, jnp.asarray(jnp.inf, r.t.dtype))
+
+
+def barycentrics_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array) -> tuple[Array, Array]:
+    """Barycentrics ``(b1, b2)`` of the ray's crossing of the triangle's plane, no inside test.
+
+    Used after a loop has chosen the closest triangle, so that the winner's barycentrics
+    exist even if a recompilation rounds its inside test differently; 0 when ``det == 0``.
+    """
+    r = _intersect_raw(frame, v0, v1, v2, jnp.asarray(jnp.inf, frame.sz.dtype))
+    return r.b1, r.b2
 
 
 def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2: Array,
@@ -221,3 +280,136 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
     zero = jnp.zeros_like(t)
     return (jnp.where(degenerate, jnp.asarray(jnp.inf, t.dtype), t),
             jnp.where(degenerate, zero, b1), jnp.where(degenerate, zero, b2))
+
+
+class TriangleSet(NamedTuple):
+    """A flat set of triangles, intersected by brute force; a pytree built by :func:`triangle_set`.
+
+    Attributes:
+        vertices: (F, 3, 3) the raw vertices ``v0, v1, v2`` of each triangle (world space).
+        ng: (F, 3) unit geometric normals ``normalize((v1 − v0) × (v2 − v0))``; zero if degenerate.
+        valid: (F,) bool, False for zero-area triangles, which are never hit.
+    """
+
+    vertices: Array
+    ng: Array
+    valid: Array
+
+    @property
+    def num_triangles(self) -> int:
+        """Number of triangles ``F`` (static)."""
+        return self.vertices.shape[0]
+
+    def closest_hit(self, origin: Array, direction: Array, t_max: Array) -> Hit:
+        """Nearest hit with ``0 < t ≤ t_max`` of one ray; see :func:`closest_hit`."""
+        frame = ray_frame(origin, direction)
+        dtype = frame.sz.dtype
+        inf = jnp.asarray(jnp.inf, dtype)
+        verts = self.vertices.astype(dtype)
+
+        def body(i, carry):
+            t, prim = carry
+            v = verts[i]
+            # current closest t as t_max: the test itself rejects farther triangles
+            ti = jnp.where(self.valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t), inf)
+            # one materialised value feeds both outputs (else XLA recomputes the test per output)
+            ti = lax.optimization_barrier(ti)
+            # strictly closer, so ties keep the lowest index; the first hit may sit at t_max
+            closer = (ti < t) | ((prim < 0) & (ti < inf))
+            return jnp.minimum(ti, t), jnp.where(closer, i, prim)
+
+        t0 = jnp.asarray(t_max, dtype)
+        t, prim = lax.fori_loop(0, self.num_triangles, body, (t0, jnp.int32(-1)))
+        return _finish_hit(self, frame, t, prim)
+
+    def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
+        """Whether one ray hits any triangle with ``0 < t ≤ t_max``; see :func:`any_hit`."""
+        frame = ray_frame(origin, direction)
+        dtype = frame.sz.dtype
+        verts = self.vertices.astype(dtype)
+        t_max = jnp.asarray(t_max, dtype)
+
+        def body(i, found):
+            v = verts[i]
+            ti = intersect_triangle_t(frame, v[0], v[1], v[2], t_max)
+            return found | (self.valid[i] & (ti < jnp.inf))
+
+        return lax.fori_loop(0, self.num_triangles, body, jnp.zeros((), bool))
+
+
+def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
+    """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
+    hit = prim >= 0
+    k = jnp.maximum(prim, 0)
+    v = geometry.vertices[k].astype(t.dtype)
+    # barycentrics of the winner only, once per ray instead of once per triangle
+    b1, b2 = barycentrics_frame(frame, v[0], v[1], v[2])
+    zero = jnp.zeros_like(t)
+    return Hit(t=jnp.where(hit, t, jnp.asarray(jnp.inf, t.dtype)),
+               prim=jnp.where(hit, prim, -1).astype(jnp.int32),
+               b1=jnp.where(hit, b1, zero), b2=jnp.where(hit, b2, zero),
+               ng=jnp.where(hit, geometry.ng[k].astype(t.dtype), jnp.zeros(3, t.dtype)))
+
+
+def triangle_set(triangles) -> TriangleSet:
+    """Validate triangles on the host and pack them for brute-force intersection.
+
+    Args:
+        triangles: (F, 3, 3) array-like (numpy or jax), ``triangles[f, k]`` the k-th vertex of
+            triangle f. Kept in its floating dtype (float32 unless x64 float64 is given).
+    Returns:
+        A :class:`TriangleSet`. Zero-area triangles are kept (indices stay those of the input)
+        but flagged invalid and never hit.
+    Raises:
+        ValueError: wrong shape, no triangles, or a non-finite vertex (names the triangle).
+    """
+    tri = np.asarray(triangles)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
+    if tri.shape[0] == 0:
+        raise ValueError("triangle set is empty")
+    if not np.issubdtype(tri.dtype, np.floating):
+        tri = tri.astype(np.float32)
+    bad = ~np.all(np.isfinite(tri), axis=(1, 2))
+    if np.any(bad):
+        idx = np.flatnonzero(bad)
+        raise ValueError(f"triangle {idx[0]} has a non-finite vertex {tri[idx[0]].tolist()}"
+                         f" ({idx.size} bad triangle(s) in all)")
+    vertices = jnp.asarray(tri)
+    tri64 = tri.astype(np.float64)
+    # normal and degeneracy from the stored (rounded) vertices, as the kernel sees them
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    valid = np.any(n != 0, axis=1)
+    n64 = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
+    length = np.linalg.norm(n64, axis=1, keepdims=True)
+    ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
+    return TriangleSet(vertices, jnp.asarray(ng.astype(vertices.dtype)), jnp.asarray(valid))
+
+
+def closest_hit(geometry, origin: Array, direction: Array, t_max: Array) -> Hit:
+    """Nearest intersection of one ray with a geometry (``TriangleSet``, BVH, ...).
+
+    Dispatches to ``geometry.closest_hit``, so any pytree class with that method plugs in.
+    Finds the hit ``o + t d`` with the smallest ``t`` in ``(δt, t_max]`` (watertight; δt the
+    rounding-error bound). Ties keep the lowest triangle index.
+
+    Args:
+        origin: (3,) ray origin.
+        direction: (3,) direction, any non-zero length; ``t`` is in units of ``‖direction‖``.
+        t_max: () upper bound on ``t`` (``inf`` for none).
+    Returns:
+        :class:`Hit` (``t = inf``, ``prim = −1`` on a miss).
+    """
+    return geometry.closest_hit(origin, direction, t_max)
+
+
+def any_hit(geometry, origin: Array, direction: Array, t_max: Array) -> Array:
+    """Whether one ray hits anything with ``0 < t ≤ t_max`` (shadow/visibility rays).
+
+    Dispatches to ``geometry.any_hit``. Equivalent to ``closest_hit(...).t <= t_max`` but
+    cheaper: no barycentrics, no ordering.
+
+    Returns:
+        () bool.
+    """
+    return geometry.any_hit(origin, direction, t_max)
