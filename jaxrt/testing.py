@@ -359,7 +359,7 @@ def chi2_test(sample_fn, pdf_fn, domain, *, num_samples: int = 1_000_000,
         domain: "square", "disk", "sphere", "hemisphere", "triangle", "interval",
             ``("interval", lo, hi)`` or a :class:`jaxrt.chi2_domains.Domain`.
         num_samples: N.
-        resolution: cells along (s1, s2); an int or the first entry only for 1D domains.
+        resolution: cells along (s1, s2); an int means (n, n); 1D domains use the first.
         seed: seed of the uniform variates.
         alpha: family-wise significance level of this call (before ``num_tests``).
         num_tests: how many chi2_test calls the caller's family holds (Šidák over them too).
@@ -369,8 +369,12 @@ def chi2_test(sample_fn, pdf_fn, domain, *, num_samples: int = 1_000_000,
         A :class:`Chi2Result`; ``str(result)`` is a readable summary.
     """
     dom = resolve_domain(domain)
-    res = (resolution,) if isinstance(resolution, int) else tuple(resolution)
-    shape = (int(res[0]), 1) if dom.dim == 1 else (int(res[0]), int(res[1]))
+    res = (resolution, resolution) if isinstance(resolution, int) else tuple(resolution)
+    shape = (int(res[0]), 1) if dom.dim == 1 else (int(res[0]), int(res[-1]))
+    if min(shape) < 1 or num_samples < 1 or not 0 < alpha < 1 or num_tests < 1:
+        raise ValueError(f"chi2_test needs resolution ≥ 1 (got {resolution}), num_samples ≥ 1 "
+                         f"(got {num_samples}), 0 < alpha < 1 (got {alpha}) and num_tests ≥ 1 "
+                         f"(got {num_tests})")
     dtype = jnp.zeros(()).dtype  # float32, or float64 under jax_enable_x64
     n = int(num_samples)
     messages: list[str] = []

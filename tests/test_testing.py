@@ -156,17 +156,24 @@ def test_correct_pairs_pass(name):
     assert r.observed.sum() == SMALL["num_samples"]
 
 
-def test_sample_dtype_follows_x64(x64):
-    seen = []
+def test_dtypes_follow_x64(x64):
+    # u and the cubature's points are float32 by default, float64 under x64; no float64 leaks.
+    want = jnp.float64 if x64 else jnp.float32
+    seen_u, seen_v = [], []
 
     def sampler(u):
-        seen.append(u.dtype)
+        seen_u.append(u.dtype)
         return cosine_hemisphere(u)
 
-    r = chi2_test(sampler, cosine_hemisphere_pdf, "hemisphere", num_samples=50_000,
-                  resolution=(20, 10))
-    assert seen and all(d == (jnp.float64 if x64 else jnp.float32) for d in seen)
+    def pdf(v):
+        seen_v.append(v.dtype)
+        return cosine_hemisphere_pdf(v)
+
+    r = chi2_test(sampler, pdf, "hemisphere", num_samples=50_000, resolution=(20, 10))
+    assert seen_u and all(d == want for d in seen_u)
+    assert seen_v and all(d == want for d in seen_v)
     assert r.passed, str(r)
+    assert r.observed.dtype == np.int64 and r.expected.dtype == np.float64
 
 
 def test_triangle_cells_are_clipped_to_the_support():
@@ -209,6 +216,10 @@ def test_user_domain_and_unknown_domain():
     assert resolve_domain(("interval", 0, 2)).jacobian == 2.0
     with pytest.raises(ValueError, match="unknown chi-square domain"):
         chi2_test(square_uniform, square_pdf, "torus")
+    for bad in (dict(num_samples=0), dict(alpha=1.5), dict(resolution=(0, 4)),
+                dict(num_tests=0)):
+        with pytest.raises(ValueError, match="chi2_test needs"):
+            chi2_test(square_uniform, square_pdf, "square", **bad)
     with pytest.raises(ValueError, match="lo < hi"):
         interval_domain(1.0, 1.0)
 
