@@ -305,6 +305,30 @@ def test_fails_samples_in_zero_pdf_region():
     assert any("zero-pdf" in m for m in r.messages)
 
 
+def test_leak_allowance_is_one_in_1e5():
+    def half_pdf(x):
+        return jnp.where(x[0] < 0.5, 2.0, 0.0).astype(x.dtype) * square_pdf(x)
+
+    def sampler_leaking(p):
+        # With probability p the sample lands in x ≥ ½, where the pdf is zero.
+        def sample(u):
+            x = jnp.where(u[0] < p, 0.5 + u[0], 0.5 * (u[0] - p) / (1 - p))
+            return jnp.stack([x, u[1]])
+        return sample
+
+    n = 1_000_000
+    # ~3 leaked samples (Poisson; P(> 10) ≈ 3e-4; seed 0 gives 3) stay within the
+    # 1e-5·N = 10 allowance.
+    ok = chi2_test(sampler_leaking(3e-6), half_pdf, "square", num_samples=n,
+                   resolution=(20, 10))
+    assert 0 < ok.num_leaked <= 10 and ok.passed, str(ok)
+    # ~50 leaked samples do not.
+    bad = chi2_test(sampler_leaking(5e-5), half_pdf, "square", num_samples=n,
+                    resolution=(20, 10))
+    assert bad.num_leaked > 10 and not bad.passed
+    assert any("zero-pdf" in m for m in bad.messages)
+
+
 def test_fails_negative_pdf():
     # Integrates to one over the square but dips to −1 near x = ¾.
     r = chi2_test(square_uniform, lambda x: 1 + 2 * jnp.sin(2 * jnp.pi * x[0]), "square",
