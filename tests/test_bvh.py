@@ -1,0 +1,229 @@
+"""BVH: build validity, agreement with brute force (closest and any hit), bad input, auto."""
+
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+
+from jaxrt.accel import AUTO_BVH_THRESHOLD, build_geometry
+from jaxrt.bvh import BVH, any_hit_batch, build_bvh, closest_hit_batch
+from jaxrt.bvh_build import build_flat_bvh
+from jaxrt.intersect import TriangleSet, any_hit, closest_hit, intersect_triangle, triangle_set
+
+
+def _quad(a, b, c, d):
+    """Two triangles (a, b, c) and (a, c, d) of a planar quad."""
+    return [[a, b, c], [a, c, d]]
+
+
+def _box(lo, hi):
+    """12 triangles of an axis-aligned box."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    p = [[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)]
+    faces = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return sum((_quad(*(p[i] for i in f)) for f in faces), [])
+
+
+def cornell_like():
+    """36 triangles: a room (6 quads) with two interior boxes, like the Cornell box."""
+    room = _box((-1, -1, -1), (1, 1, 1))
+    return np.asarray(room + _box((-0.6, -1, -0.5), (-0.1, 0.2, 0.0))
+                      + _box((0.1, -1, 0.1), (0.6, -0.4, 0.6)), np.float32)
+
+
+def soup(n=200, seed=0):
+    """Random small triangles in [-1, 1]³, with a few zero-area ones mixed in."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(-1, 1, (n, 1, 3))
+    tri = c + rng.normal(scale=0.15, size=(n, 3, 3))
+    tri[25::50, 2] = tri[25::50, 1]  # degenerate: two equal vertices
+    return tri.astype(np.float32)
+
+
+def plane(k=10):
+    """A flat 2k² -triangle grid in the plane z = 0.25."""
+    g = np.linspace(-1, 1, k + 1)
+    q = [_quad([g[i], g[j], 0.25], [g[i + 1], g[j], 0.25], [g[i + 1], g[j + 1], 0.25],
+               [g[i], g[j + 1], 0.25]) for i in range(k) for j in range(k)]
+    return np.asarray(sum(q, []), np.float32)
+
+
+MESHES = {
+    "soup": soup(),
+    "icosphere": trimesh.creation.icosphere(subdivisions=2).triangles.astype(np.float32),
+    "cornell": cornell_like(),
+    "one": soup(1, seed=3),
+    "two": soup(2, seed=4),
+    "identical": np.repeat(soup(1, seed=5), 20, axis=0),
+    "plane": plane(),
+}
+
+
+def rays(tri, n=256, seed=1):
+    """Rays from inside and outside the mesh bounds: random, and aimed at triangles.
+
+    A third aim at triangle centroids with non-unit directions (sure hits); t_max is ∞ for
+    half of the rays and a random finite limit for the others.
+    """
+    rng = np.random.default_rng(seed)
+    lo, hi = tri.min(axis=(0, 1)), tri.max(axis=(0, 1))
+    span = np.maximum(hi - lo, 1e-3)
+    o = lo - 0.3 * span + rng.uniform(size=(n, 3)) * 1.6 * span
+    d = rng.normal(size=(n, 3))
+    aim = rng.integers(0, len(tri), n // 3)
+    d[: n // 3] = tri[aim].mean(axis=1) - o[: n // 3]
+    t_max = np.where(rng.uniform(size=n) < 0.5, np.inf, rng.uniform(0.05, 2.0, n))
+    return o.astype(tri.dtype), d.astype(tri.dtype), t_max.astype(tri.dtype)
+
+
+# The persistent-lane batch path is checked on these (compiling it for every mesh is slow).
+BATCH_MESHES = ("soup", "icosphere", "cornell")
+
+
+@partial(jax.jit, static_argnames="batch")
+def _queries(bvh, tset, o, d, t_max, batch=True):
+    """Every query on one mesh in one compiled function (so each mesh compiles once)."""
+    per_ray = lambda f, g: jax.vmap(f, (None, 0, 0, 0))(g, o, d, t_max)
+    out = dict(
+        brute=per_ray(closest_hit, tset), brute_any=per_ray(any_hit, tset),
+        bvh=per_ray(closest_hit, bvh), bvh_any=per_ray(any_hit, bvh),
+    )
+    if batch:
+        out["batch"] = closest_hit_batch(bvh, o, d, t_max, lanes=64, refill_every=2)
+        out["batch_any"] = any_hit_batch(bvh, o, d, t_max, lanes=64, refill_every=2)
+    return out
+
+
+def _check_closest(tri, o, d, t_max, ref, got):
+    """Same t everywhere; same prim unless both triangles are hit at that same t (a tie)."""
+    ref = jax.tree_util.tree_map(np.asarray, ref)
+    got = jax.tree_util.tree_map(np.asarray, got)
+    # Same watertight test on the same vertices: t may differ only by XLA's contraction
+    # choices in the two compiled loops, a few ulp (8 ulp bound).
+    np.testing.assert_allclose(got.t, ref.t, rtol=8 * np.finfo(tri.dtype).eps, atol=0)
+    np.testing.assert_array_equal(got.prim >= 0, ref.prim >= 0)
+    differ = np.flatnonzero(got.prim != ref.prim)
+    for i in differ:  # ties only: the BVH's triangle is hit at the brute-force t
+        v = tri[got.prim[i]]
+        t_other, _, _ = intersect_triangle(o[i], d[i], v[0], v[1], v[2], t_max[i])
+        np.testing.assert_allclose(t_other, ref.t[i], rtol=8 * np.finfo(tri.dtype).eps)
+    same = got.prim == ref.prim
+    # Barycentrics and normals of the same triangle: same formulas, a few ulp apart.
+    np.testing.assert_allclose(got.b1[same], ref.b1[same], atol=1e-5)
+    np.testing.assert_allclose(got.b2[same], ref.b2[same], atol=1e-5)
+    np.testing.assert_allclose(got.ng[same], ref.ng[same], atol=1e-6)
+    return len(differ)
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_bvh_matches_brute_force(name):
+    tri = MESHES[name]
+    o, d, t_max = rays(tri)
+    bvh, tset = build_bvh(tri), triangle_set(tri)
+    batch = name in BATCH_MESHES
+    out = _queries(bvh, tset, o, d, t_max, batch=batch)
+    # The ray set must exercise both outcomes (a third of the rays aim at triangles).
+    assert int(jnp.sum(out["brute"].prim >= 0)) >= 10
+    assert int(jnp.sum(out["brute"].prim < 0)) >= 10
+    ties = _check_closest(tri, o, d, t_max, out["brute"], out["bvh"])
+    # Only coincident triangles can tie: at most the "identical" mesh has them.
+    assert name == "identical" or ties == 0
+    # Any-hit is an exact boolean: same test, same t_max.
+    np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
+    if batch:
+        _check_closest(tri, o, d, t_max, out["brute"], out["batch"])
+        np.testing.assert_array_equal(out["batch_any"], out["brute_any"])
+
+
+@pytest.mark.parametrize("name", list(MESHES))
+def test_build_is_valid(name):
+    tri = MESHES[name]
+    leaf_size = 4
+    b = build_flat_bvh(tri, leaf_size=leaf_size)
+    n_tri, n_nodes = len(tri), len(b.skip)
+    leaves = np.flatnonzero(b.leaf_count > 0)
+    # Every triangle sits in exactly one leaf, and leaves respect the size bound.
+    cover = np.zeros(n_tri + leaf_size, int)
+    for s, c in zip(b.leaf_start[leaves], b.leaf_count[leaves], strict=True):
+        cover[s:s + c] += 1
+    assert (cover[:n_tri] == 1).all() and (cover[n_tri:] == 0).all()
+    assert (b.leaf_count <= leaf_size).all()
+    np.testing.assert_array_equal(np.sort(b.prim[:n_tri]), np.arange(n_tri))
+    np.testing.assert_array_equal(b.triangles[:n_tri], tri[b.prim[:n_tri]])
+    # Leaf boxes contain their triangles; children lie inside their parent.
+    for i in leaves:
+        t = b.triangles[b.leaf_start[i]:b.leaf_start[i] + b.leaf_count[i]]
+        assert (t.min(axis=(0, 1)) >= b.box_lo[i]).all()
+        assert (t.max(axis=(0, 1)) <= b.box_hi[i]).all()
+    for i in np.flatnonzero(b.leaf_count == 0):
+        left, right = i + 1, b.skip[i + 1]
+        # Threaded layout: the right child follows the left subtree and shares i's skip.
+        assert right < b.skip[i] and b.skip[right] == b.skip[i]
+        for child in (left, right):
+            assert (b.box_lo[child] >= b.box_lo[i]).all()
+            assert (b.box_hi[child] <= b.box_hi[i]).all()
+    assert b.skip[0] == n_nodes
+
+
+def test_sah_beats_median_on_clustered_input():
+    """SAH isolates two distant clusters at the root; the root split leaves no mixed child."""
+    rng = np.random.default_rng(7)
+    a = rng.uniform(0, 0.1, (60, 3, 3))
+    b = rng.uniform(0, 0.1, (4, 3, 3)) + 10.0
+    flat = build_flat_bvh(np.concatenate([a, b]).astype(np.float32), leaf_size=4)
+    right = flat.skip[1]
+    # The 4 far triangles form the root's right child, a single leaf.
+    assert flat.leaf_count[right] == 4 and flat.box_lo[right].min() >= 10.0
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (np.zeros((0, 3, 3), np.float32), "empty"),
+        (np.zeros((4, 3), np.float32), "shape"),
+        (np.zeros((3, 3, 2), np.float32), "shape"),
+    ],
+)
+def test_build_rejects_bad_input(bad, match):
+    with pytest.raises(ValueError, match=match):
+        build_bvh(bad)
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_build_names_non_finite_triangle(value):
+    tri = soup(10)
+    tri[7, 1, 2] = value
+    with pytest.raises(ValueError, match="triangle 7"):
+        build_bvh(tri)
+    with pytest.raises(ValueError, match="leaf_size"):
+        build_bvh(soup(10), leaf_size=0)
+
+
+def test_dtypes_and_x64(x64):
+    """float32 in, float32 out; float64 under x64 and the same agreement with brute force."""
+    dtype = np.float64 if x64 else np.float32
+    tri = MESHES["cornell"].astype(dtype)
+    o, d, t_max = rays(tri, n=128)
+    bvh, tset = build_bvh(tri), triangle_set(tri)
+    assert bvh.tri.dtype == dtype and bvh.box[0].dtype == dtype
+    out = _queries(bvh, tset, o, d, t_max)
+    assert out["bvh"].t.dtype == dtype and out["bvh"].prim.dtype == jnp.int32
+    assert out["bvh"].ng.dtype == dtype and out["batch"].b1.dtype == dtype
+    assert _check_closest(tri, o, d, t_max, out["brute"], out["bvh"]) == 0
+    np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
+
+
+def test_auto_threshold_picks_class():
+    small = soup(AUTO_BVH_THRESHOLD - 1)
+    large = soup(AUTO_BVH_THRESHOLD)
+    assert isinstance(build_geometry(small), TriangleSet)
+    assert isinstance(build_geometry(large), BVH)
+    assert isinstance(build_geometry(small, accel="bvh", leaf_size=2), BVH)
+    assert isinstance(build_geometry(large, accel="brute"), TriangleSet)
+    with pytest.raises(ValueError, match="unknown accel"):
+        build_geometry(small, accel="kd-tree")
+    with pytest.raises(ValueError, match="options"):
+        build_geometry(small, accel="brute", leaf_size=2)
