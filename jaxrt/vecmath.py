@@ -79,7 +79,7 @@ def to_world(v: Array, n: Array) -> Array:
 
 
 def reflect(w: Array, n: Array) -> Array:
-    """Mirror direction of ``w`` about unit normal ``n``: ``2 (w·n) n − w`` (both leave the surface)."""
+    """Mirror of ``w`` about unit normal ``n``: ``2 (w·n) n − w`` (both leave the surface)."""
     return 2 * dot(w, n) * n - w
 
 
