@@ -1,0 +1,149 @@
+"""render(): reproducibility, chunking, devices, stopping rules, error estimates, agreement."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxrt import scenes
+from jaxrt.estimators import ESTIMATORS
+from jaxrt.render import _mean_and_error, render
+
+
+@pytest.fixture(scope="module")
+def box16():
+    return scenes.cornell_box(width=16, height=16)
+
+
+def test_result_shapes_and_dtypes(box16):
+    r = render(box16, "mis", spp=4, progress=False)
+    assert r.image.shape == (16, 16, 3) and r.image.dtype == np.float32
+    assert r.stderr.shape == (16, 16, 3) and r.stderr.dtype == np.float32
+    assert r.spp == 4 and r.nonfinite == 0 and r.passes == 1
+    assert np.all(np.isfinite(r.image)) and np.all(r.image >= 0)
+    assert r.timings["samples_per_s"] > 0 and r.timings["compile"] > 0
+    # the light is visible from the camera: some pixels carry its radiance directly
+    assert r.image.max() > 5
+
+
+def test_same_seed_bit_identical_whatever_the_chunking(box16):
+    a = render(box16, "mis", spp=4, seed=3, tile_size=256, batch_size=1, progress=False)
+    b = render(box16, "mis", spp=4, seed=3, tile_size=7, batch_size=3, progress=False)
+    c = render(box16, "mis", spp=4, seed=4, progress=False)
+    assert np.array_equal(a.image, b.image)
+    assert np.array_equal(a.stderr, b.stderr)
+    assert not np.array_equal(a.image, c.image)
+
+
+def test_progressive_passes_match_one_pass(box16):
+    one = render(box16, "mis", spp=8, seed=1, progress=False)
+    many = render(box16, "mis", spp=8, seed=1, spp_per_pass=2, progress=False)
+    assert many.passes == 4 and many.spp == 8
+    # same samples, summed in another order: equal to float32 rounding
+    np.testing.assert_allclose(many.image, one.image, rtol=1e-5, atol=1e-6)
+
+
+def test_time_budget_and_target_error_stop_early(box16):
+    r = render(box16, "mis", spp=4096, spp_per_pass=4, time_budget=0.5, progress=False)
+    assert r.stopped_by == "time_budget" and r.spp < 4096
+    r = render(box16, "mis", spp=4096, spp_per_pass=8, target_error=0.5, progress=False)
+    assert r.stopped_by == "target_error" and r.relative_error <= 0.5 and r.spp < 4096
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(spp=0), "spp"), (dict(spp=2.5), "spp"), (dict(sampler="halton"), "sampler"),
+    (dict(time_budget=-1), "time_budget"), (dict(target_error=0), "target_error"),
+    (dict(devices=99), "devices"), (dict(estimator="nope"), "unknown estimator"),
+])
+def test_bad_arguments(box16, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        render(box16, **{"estimator": "mis", "spp": 2, "progress": False, **kwargs})
+
+
+def test_nonfinite_samples_are_counted_not_kept(box16, monkeypatch):
+    import jaxrt.render as R
+
+    real = R.camera_sample
+
+    def poisoned(scene, est, pixel, index, seed, sampler, spp):
+        v = real(scene, est, pixel, index, seed, sampler, spp)
+        return jnp.where((pixel == 5) & (index == 1), jnp.nan, v)
+
+    monkeypatch.setattr(R, "camera_sample", poisoned)
+    R._render_pass.clear_cache()
+    r = render(box16, "mis", spp=4, progress=False)
+    R._render_pass.clear_cache()
+    assert r.nonfinite == 1
+    assert np.all(np.isfinite(r.image))
+
+
+def test_mean_and_error_formula():
+    x = np.random.default_rng(0).normal(2.0, 3.0, size=(1000, 1))
+    mean, err = _mean_and_error(x.sum(0), (x * x).sum(0), 1000)
+    assert mean[0] == pytest.approx(x.mean())
+    assert err[0] == pytest.approx(x.std(ddof=1) / np.sqrt(1000), rel=1e-9)
+
+
+def test_two_devices_identical_to_one(tmp_path):
+    """Sharding tiles over two (host) devices changes nothing in the image."""
+    code = textwrap.dedent("""
+        import numpy as np, jax
+        from jaxrt import scenes
+        from jaxrt.render import render
+        assert len(jax.devices()) == 2, jax.devices()
+        s = scenes.cornell_box(width=12, height=10)
+        a = render(s, "mis", spp=2, seed=5, devices=1, progress=False)
+        b = render(s, "mis", spp=2, seed=5, devices=2, progress=False)
+        assert np.array_equal(a.image, b.image), np.abs(a.image - b.image).max()
+        print("OK")
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "OK" in out.stdout
+
+
+def _blocks(img, k=4):
+    h, w, c = img.shape
+    return img[: h // k * k, : w // k * k].reshape(h // k, k, w // k, k, c).mean(axis=(1, 3))
+
+
+@pytest.mark.slow
+def test_estimators_agree_pixelwise_on_the_cornell_box():
+    """Every estimator against MIS on the Cornell box: z-scores of 4×4-pixel block means.
+
+    Blocks of 16 pixels make each mean close to Gaussian even for hemisphere sampling (whose
+    per-pixel distribution is heavy-tailed). For unbiased estimators z ~ N(0, 1): we require
+    |mean z| < 0.25 (the mean of 64 blocks has σ = 0.125) and fewer than 3 of 64 blocks
+    beyond |z| = 3.5 (probability 5e-4 each).
+    """
+    s = scenes.cornell_box(width=32, height=32)
+    ref = render(s, "mis", spp=256, seed=100, progress=False)
+    r_mean, r_err = _blocks(ref.image), np.sqrt(_blocks(ref.stderr**2) / 16)
+    for est in ESTIMATORS:
+        spp = 1024 if est in ("uniform_hemisphere", "cosine_hemisphere", "bsdf") else 128
+        r = render(s, est, spp=spp, seed=1, progress=False)
+        m, e = _blocks(r.image), np.sqrt(_blocks(r.stderr**2) / 16)
+        z = (m - r_mean) / np.sqrt(e**2 + r_err**2 + 1e-12)
+        assert abs(z.mean()) < 0.25, (est, z.mean())
+        assert np.sum(np.abs(z) > 3.5) < 3, (est, np.sort(np.abs(z).ravel())[-5:])
+
+
+@pytest.mark.slow
+def test_error_falls_as_one_over_sqrt_n():
+    """RMSE against a 4096-spp reference: log-log slope −0.5 ± 0.1 over spp 4 … 256."""
+    s = scenes.cornell_box(width=16, height=16)
+    ref = render(s, "mis", spp=4096, seed=99, progress=False).image
+    spps = [4, 16, 64, 256]
+    rmse = []
+    for n in spps:
+        errs = [np.sqrt(np.mean((render(s, "mis", spp=n, seed=k, progress=False).image - ref)
+                                ** 2)) for k in range(3)]
+        rmse.append(np.mean(errs))
+    slope = np.polyfit(np.log(spps), np.log(rmse), 1)[0]
+    assert -0.6 < slope < -0.4, (slope, rmse)
