@@ -209,7 +209,8 @@ def test_bench_mitsuba_direct(benchmark, mi, rfilter):
     info = benchmark.extra_info
     info.update(spp=spp, samples_per_render=n, rfilter=rfilter, variant=mc.DEFAULT_VARIANT,
                 mitsuba_version=mi.__version__, warmup_seconds=warm["warmup_seconds"],
-                warmup_compile_seconds=warm["warmup_compile_seconds"])
+                warmup_compile_seconds=warm["warmup_compile_seconds"],
+                warmup_cache_hits=warm["warmup_cache_hits"])
     stats = getattr(benchmark, "stats", None)
     if stats is not None:  # None under --benchmark-disable (the body ran once, untimed)
         info["msamples_per_second_best"] = n / stats.stats.min / 1e6
