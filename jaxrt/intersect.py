@@ -27,6 +27,9 @@ Floating-point notes (why this is watertight under XLA):
   too (with truncation ``a_lo·b_lo`` rounded and rays aimed exactly at vertices leaked).
 - Hits with ``t ≤ 0`` are rejected by pbrt's conservative bound ``δt`` on the rounding error of
   ``t`` (pbrt-v4 §6.8.4), not by a fixed epsilon; degenerate (zero-area) triangles never hit.
+  One correction to pbrt: the shear error ``δx, δy`` uses the raw (world-unit) z, not z scaled
+  by ``1/d_z``; pbrt's form is right only for ``|d_z| ≈ 1`` and rejected genuine hits of a
+  1e-8-thin slab along an unnormalised shadow ray of length 2e-4.
 """
 
 from __future__ import annotations
@@ -192,6 +195,8 @@ def _intersect_raw(frame: RayFrame, v0: Array, v1: Array, v2: Array, t_max: Arra
     # inside iff all edge functions share a sign (zeros count as either: edges are shared)
     inside = ~(((e0 < 0) | (e1 < 0) | (e2 < 0)) & ((e0 > 0) | (e1 > 0) | (e2 > 0)))
     det = e0 + e1 + e2
+    # the shear's rounding scales with the raw z (world units), not with z scaled to t units
+    max_z_raw = _max3(jnp.abs(z0), jnp.abs(z1), jnp.abs(z2))
     # scaled hit distance, compared against t_max without dividing
     z0, z1, z2 = frame.sz * z0, frame.sz * z1, frame.sz * z2
     t_scaled = e0 * z0 + e1 * z1 + e2 * z2
@@ -205,8 +210,10 @@ def _intersect_raw(frame: RayFrame, v0: Array, v1: Array, v2: Array, t_max: Arra
     max_xt = _max3(jnp.abs(x0), jnp.abs(x1), jnp.abs(x2))
     max_yt = _max3(jnp.abs(y0), jnp.abs(y1), jnp.abs(y2))
     delta_z = gamma(3, dtype) * max_zt
-    delta_x = gamma(5, dtype) * (max_xt + max_zt)
-    delta_y = gamma(5, dtype) * (max_yt + max_zt)
+    # pbrt writes max_zt (scaled) here, which is the raw z only for |d_z| = 1: too loose for
+    # short directions (rejects real hits) and too tight for long ones (unnormalised shadow rays)
+    delta_x = gamma(5, dtype) * (max_xt + max_z_raw)
+    delta_y = gamma(5, dtype) * (max_yt + max_z_raw)
     delta_e = 2 * (gamma(2, dtype) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt)
     max_e = _max3(jnp.abs(e0), jnp.abs(e1), jnp.abs(e2))
     delta_t = 3 * (gamma(3, dtype) * max_e * max_zt + delta_e * max_zt
