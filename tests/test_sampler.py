@@ -69,6 +69,16 @@ def test_no_correlation_across_dimensions_and_pixels(kind):
     bound = 5 / np.sqrt(n)  # |r| of independent uniforms has standard deviation 1/√N
     for d in range(5):
         assert abs(np.corrcoef(u[d].ravel(), u[d + 1].ravel())[0, 1]) < bound, d
+    # Per pixel, over its S indices, for every pair of dims (a per-pixel random sign would cancel
+    # in the pooled r): under independence S·r² averages 1 (iid; less for stratified streams),
+    # with spread √(2/P) ≈ 0.09 over P = 256 pixels; bound 2.
+    s = u.shape[2]
+    c = u - u.mean(axis=2, keepdims=True)
+    c /= np.sqrt((c**2).sum(axis=2, keepdims=True))
+    for a in range(6):
+        for b in range(a + 1, 6):
+            r = (c[a] * c[b]).sum(axis=1)  # (P,) per-pixel correlation
+            assert s * np.mean(r**2) < 2.0, (a, b, s * np.mean(r**2))
     for d in (0, 3):
         # Pixel p against pixel p + 1 at the same index and dimension.
         r = np.corrcoef(u[d][:-1].ravel(), u[d][1:].ravel())[0, 1]
