@@ -12,6 +12,7 @@ W, H = 64, 48
 
 ray = jax.jit(generate_ray)
 rays = jax.jit(jax.vmap(generate_ray, in_axes=(None, 0, 0)))
+projects = jax.jit(jax.vmap(project, in_axes=(None, 0)))
 
 
 def _angle(a, b):
@@ -80,7 +81,7 @@ def test_jitter_stays_in_pixel_footprint(x64):
     u = jax.random.uniform(jax.random.PRNGKey(1), (n, 2), dt)
     u = u.at[0].set(0).at[1].set(1 - jnp.finfo(dt).epsneg)  # the footprint's extreme corners
     o, d = rays(cam, pix, u)
-    raster, depth = jax.vmap(project, in_axes=(None, 0))(cam, o + d)
+    raster, depth = projects(cam, o + d)
     # the ray's film point is (x + u0, y + u1): inside [x, x+1) × [y, y+1) up to round-off
     tol = 1e-9 if x64 else 2e-4
     np.testing.assert_allclose(raster, pix + u, atol=tol)
