@@ -327,3 +327,12 @@ def test_finite_at_extremes(make, x64):
             assert np.all(np.isfinite(x)) and x.dtype == dt
         # a single Phong weight may exceed 1 by (n+2)/(n+1); 1% above 1 still catches blow-ups
         assert np.all(np.asarray(s.weight) >= 0) and np.all(np.asarray(s.weight) <= 1.01)
+
+
+def test_bsdf_albedo_helper():
+    """The public furnace helper: the diffuse albedo is kd, with zero standard error."""
+    a, e = jax.jit(mat.bsdf_albedo, static_argnums=3)(
+        CASES["diffuse"](), wo_at(30.0), uniforms(N, 31), (mat.DIFFUSE,))
+    np.testing.assert_allclose(a, [0.7, 0.5, 0.2], rtol=1e-6)  # constant weight kd
+    np.testing.assert_array_less(e, 1e-6)
+    assert a.dtype == jnp.float32
