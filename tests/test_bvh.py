@@ -118,7 +118,14 @@ def _check_closest(tri, o, d, t_max, ref, got):
     return len(differ)
 
 
-@pytest.mark.parametrize("name", list(MESHES))
+# Degenerate meshes compile one traversal each: run them with the slow suite (CI).
+AGREEMENT_CASES = [
+    name if name in BATCH_MESHES else pytest.param(name, marks=pytest.mark.slow)
+    for name in MESHES
+]
+
+
+@pytest.mark.parametrize("name", AGREEMENT_CASES)
 def test_bvh_matches_brute_force(name):
     tri = MESHES[name]
     o, d, t_max = rays(tri)
@@ -206,7 +213,7 @@ def test_dtypes_and_x64(x64):
     """float32 in, float32 out; float64 under x64 and the same agreement with brute force."""
     dtype = np.float64 if x64 else np.float32
     tri = MESHES["cornell"].astype(dtype)
-    o, d, t_max = rays(tri, n=128)
+    o, d, t_max = rays(tri)  # same shapes as the cornell case: reuses its compilation in f32
     bvh, tset = build_bvh(tri), triangle_set(tri)
     assert bvh.tri.dtype == dtype and bvh.box[0].dtype == dtype
     out = _queries(bvh, tset, o, d, t_max)
