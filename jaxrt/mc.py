@@ -51,11 +51,21 @@ class Estimate(NamedTuple):
         return jnp.sqrt(self.variance / jnp.maximum(self._count(), 1))
 
 
-def pairwise_sum(x: Array) -> Array:
-    """``Σ_i x_i`` over the leading axis by a binary tree of additions (error ``O(ε log N)``).
+_BLOCK = 64  # leaf size of the summation tree
 
-    The loop runs over the ``⌈log2 N⌉`` tree levels (static shapes), not over samples.
+
+def pairwise_sum(x: Array) -> Array:
+    """``Σ_i x_i`` over the leading axis by a tree of additions (error ``O(ε (B + log N))``).
+
+    Leaves are blocks of ``B = 64`` values summed directly; the block sums are then added
+    pairwise. The loop runs over the ``⌈log2 (N/B)⌉`` tree levels (static shapes), not samples.
     """
+    n = x.shape[0]
+    if n > _BLOCK:
+        pad = -n % _BLOCK
+        if pad:
+            x = jnp.concatenate([x, jnp.zeros((pad,) + x.shape[1:], x.dtype)])
+        x = jnp.sum(x.reshape((-1, _BLOCK) + x.shape[1:]), axis=1)
     while x.shape[0] > 1:
         if x.shape[0] % 2:
             x = jnp.concatenate([x, jnp.zeros_like(x[:1])])

@@ -288,7 +288,7 @@ def test_pc2d_bad_values():
 def test_pc2d_traced_build_matches_host():
     host = pc2d_from_values(TABLE_2D.astype(np.float32))
     traced = jax.jit(pc2d_from_values)(jnp.asarray(TABLE_2D, jnp.float32))
-    u = uniforms((1000, 2), 6)
+    u = uniforms((10_000, 2), 6)
     a = PC2D_SAMPLE(host, u)
     b = PC2D_SAMPLE(traced, u)
     # float32 normalisation differs by ulps: a few samples move by ~1e-6 near bin edges.
@@ -301,7 +301,7 @@ def test_pc2d_traced_build_matches_host():
 
 def test_vmap_equals_loop_and_jit_equals_eager():
     d1, d2 = pc1d_from_values(VALUES_1D), pc2d_from_values(TABLE_2D)
-    u = uniforms((4, 2), 7)
+    u = uniforms((10_000, 2), 7)  # the round-trip test's shape: compiled once
     batched = PC2D_SAMPLE(d2, u)
     # Eager op-by-op execution is slow to dispatch: one sample is enough.
     eager = pc2d_sample(d2, u[0])
@@ -333,7 +333,7 @@ def test_x64(x64):
     dtype = jnp.float64 if x64 else jnp.float32
     d2 = pc2d_from_values(TABLE_2D)  # float64 numpy in → float64 tables under x64
     assert d2.integral.dtype == dtype
-    u = jax.random.uniform(jax.random.key(8), (50_000, 2), dtype)
+    u = jax.random.uniform(jax.random.key(8), (N, 2), dtype)  # chi2 test's shape: cached
     xy, pdf = PC2D_SAMPLE(d2, u)
     assert xy.dtype == pdf.dtype == dtype
     back = PC2D_TO_SQUARE(d2, xy)

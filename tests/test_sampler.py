@@ -99,8 +99,8 @@ def test_never_one():
         v = sampler._jittered(jnp.asarray(n - 1, jnp.uint32), top, n)
         assert float(v) < 1.0, n
     for kind in SAMPLER_KINDS:
-        u = grid_1d(kind, SEED, jnp.arange(16, dtype=jnp.int32), jnp.arange(4096, dtype=jnp.int32),
-                    0, 4096)
+        u = grid_1d(kind, SEED, jnp.arange(64, dtype=jnp.int32), jnp.arange(1024, dtype=jnp.int32),
+                    0, SPP)
         assert float(u.max()) < 1.0
 
 
@@ -113,19 +113,16 @@ def test_identical_whatever_the_batching(kind):
     one = lambda p, i: sample_2d(kind, SEED, p, i, 2, SPP)
     nested = jax.jit(jax.vmap(jax.vmap(one, (None, 0)), (0, None)))(pixels, idx)
     np.testing.assert_array_equal(nested, full)
-    # Flattened batch, reshaped.
+    # A flattened batch in chunks of 37 through lax.map (the renderer's tiling), reshaped.
     pp, ii = jnp.meshgrid(pixels, idx, indexing="ij")
-    flat = jax.jit(jax.vmap(one))(pp.ravel(), ii.ravel()).reshape(8, 500, 2)
-    np.testing.assert_array_equal(flat, full)
-    # Chunks of 37 through lax.map, and a single scalar call.
-    chunked = jax.lax.map(lambda a: one(a[0], a[1]), jnp.stack([pp.ravel(), ii.ravel()], -1),
-                          batch_size=37).reshape(8, 500, 2)
+    chunked = jax.jit(lambda a: jax.lax.map(lambda r: one(r[0], r[1]), a, batch_size=37))(
+        jnp.stack([pp.ravel(), ii.ravel()], -1)).reshape(8, 500, 2)
     np.testing.assert_array_equal(chunked, full)
-    np.testing.assert_array_equal(jax.jit(one)(pixels[3], idx[123]), full[3, 123])
 
 
 def test_x64_output_dtype_and_same_values(enable_x64):
-    p, idx = jnp.arange(4, dtype=jnp.int32), jnp.arange(64, dtype=jnp.int32)
+    # Same shapes as the uniformity test, so the float32 kernels come from the jit cache.
+    p, idx = jnp.arange(64, dtype=jnp.int32), jnp.arange(1024, dtype=jnp.int32)
     for kind in SAMPLER_KINDS:
         u64 = grid_2d(kind, SEED, p, idx, 0, SPP)
         assert u64.dtype == jnp.float64
@@ -151,11 +148,11 @@ def test_bad_arguments():
 # ------------------------------------------------------------------------- structure
 
 
-@pytest.mark.parametrize("n", [1, 2, 5, 16, 64, 100, 1000])
+@pytest.mark.parametrize("n", [1, 5, 64, 1000])
 def test_permute_is_a_permutation(n):
+    perm = jax.jit(sampler.permute, static_argnums=1)
     for key in (0, 12345, 0xDEADBEEF):
-        out = np.asarray(sampler.permute(jnp.arange(n, dtype=jnp.uint32), n,
-                                         jnp.asarray(key, jnp.uint32)))
+        out = np.asarray(perm(jnp.arange(n, dtype=jnp.uint32), n, jnp.asarray(key, jnp.uint32)))
         np.testing.assert_array_equal(np.sort(out), np.arange(n))
 
 
