@@ -348,14 +348,19 @@ def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -
     """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
     hit = prim >= 0
     k = jnp.maximum(prim, 0)
-    v = geometry.vertices[k].astype(t.dtype)
+    # one gather per scalar component from a (12, F) table: under vmap each is a contiguous
+    # (N,) vector, where gathering (3, 3) rows made this step cost more than the whole loop
+    table = jnp.concatenate([geometry.vertices.reshape(-1, 9), geometry.ng], axis=1).T
+    c = [table[j][k].astype(t.dtype) for j in range(12)]
+    # vertices as tuples of scalars (the kernel only indexes them): no (N, 3) intermediate
+    v0, v1, v2 = tuple(c[0:3]), tuple(c[3:6]), tuple(c[6:9])
     # barycentrics of the winner only, once per ray instead of once per triangle
-    b1, b2 = barycentrics_frame(frame, v[0], v[1], v[2])
+    b1, b2 = barycentrics_frame(frame, v0, v1, v2)
     zero = jnp.zeros_like(t)
     return Hit(t=jnp.where(hit, t, jnp.asarray(jnp.inf, t.dtype)),
                prim=jnp.where(hit, prim, -1).astype(jnp.int32),
                b1=jnp.where(hit, b1, zero), b2=jnp.where(hit, b2, zero),
-               ng=jnp.where(hit, geometry.ng[k].astype(t.dtype), jnp.zeros(3, t.dtype)))
+               ng=jnp.where(hit, jnp.stack(c[9:12]), jnp.zeros(3, t.dtype)))
 
 
 def triangle_set(triangles) -> TriangleSet:
