@@ -7,9 +7,12 @@ The image is the per-pixel Monte Carlo mean of :func:`jaxrt.estimators.camera_sa
 
 computed per channel from running sums. How the work is cut never changes the numbers:
 
-- pixels are flattened (row-major, row 0 at the top) into tiles of ``tile_size`` pixels;
+- pixels are flattened (row-major, row 0 at the top) into tiles of ``tile_size`` pixels
+  (rounded up to a multiple of 16, so every pixel runs the same vectorised code: XLA's
+  scalar remainder loop can round differently from its vector body);
   ``lax.map`` walks the tiles (``batch_size`` tiles at a time, vmapped) so memory is bounded
-  at any resolution; tiles are split over ``jax.devices()`` with ``shard_map``;
+  at any resolution; tiles are split over ``jax.devices()`` (each device runs the same
+  program on its own range of tiles);
 - the sample loop is a ``lax.fori_loop``; a *pass* renders ``spp_per_pass`` samples of every
   pixel with the sample indices ``[start, start + spp_per_pass)``;
 - every sample is a pure function of (seed, pixel, sample index), so the same seed gives a
@@ -36,11 +39,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
-from jax.sharding import Mesh, PartitionSpec
 
 from jaxrt.estimators import Estimator, camera_sample, make_estimator
 from jaxrt.sampler import SAMPLER_KINDS
 from jaxrt.scene import Scene, with_triangle_sampling
+
+#: Tiles are rounded up to a multiple of this many pixels (the widest CPU vector of float32).
+LANES = 16
 
 
 class RenderResult(NamedTuple):
@@ -95,31 +100,65 @@ def _pixel_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed
 
 
 @partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
-                                   "batch_size", "num_devices"))
-def _render_pass(scene: Scene, seed, start, *, est: Estimator, sampler: str, spp_total: int,
-                 count: int, tile_size: int, batch_size: int, num_devices: int) -> _Sums:
-    """One pass over every pixel: sums of ``count`` samples per pixel, shape (H·W, …)."""
+                                   "batch_size", "num_tiles"))
+def _render_tiles(scene: Scene, seed, start, first_tile, *, est: Estimator, sampler: str,
+                  spp_total: int, count: int, tile_size: int, batch_size: int,
+                  num_tiles: int) -> _Sums:
+    """Sums of ``count`` samples for the pixels of tiles ``[first_tile, first_tile+num_tiles)``.
+
+    Returns arrays with a leading axis of ``num_tiles · tile_size`` pixels; pixels past the
+    end of the image are computed as pixel 0 and must be discarded by the caller.
+    """
     num_pixels = scene.width * scene.height
-    tiles_per_device = math.ceil(num_pixels / (tile_size * num_devices))
-    padded = tiles_per_device * tile_size * num_devices
-    pixels = jnp.arange(padded, dtype=jnp.int32).reshape(num_devices * tiles_per_device,
-                                                          tile_size)
+    pixels = (first_tile * tile_size
+              + jnp.arange(num_tiles * tile_size, dtype=jnp.int32)).reshape(num_tiles, tile_size)
     one_pixel = partial(_pixel_sums, scene, est, sampler, spp_total, seed, start=start,
                         count=count)
 
     def tile(pix):
-        # pixels past the end of the image are rendered as pixel 0 and discarded
         return jax.vmap(one_pixel)(jnp.where(pix < num_pixels, pix, 0))
 
-    def local(tiles):
-        return lax.map(tile, tiles, batch_size=batch_size)
+    sums = lax.map(tile, pixels, batch_size=batch_size)
+    return jax.tree.map(lambda a: a.reshape((num_tiles * tile_size,) + a.shape[2:]), sums)
 
-    if num_devices > 1:
-        mesh = Mesh(np.asarray(jax.devices()[:num_devices]), ("d",))
-        spec = PartitionSpec("d")
-        local = jax.shard_map(local, mesh=mesh, in_specs=spec, out_specs=spec)
-    sums = local(pixels)
-    return jax.tree.map(lambda a: a.reshape((padded,) + a.shape[2:])[:num_pixels], sums)
+
+class _Pass:
+    """One progressive pass, split over devices: each device runs the same compiled program
+    on its own contiguous range of tiles (so the image cannot depend on the device count)."""
+
+    def __init__(self, scene: Scene, seed: int, devices: list, tile_size: int, **static):
+        num_pixels = scene.width * scene.height
+        total_tiles = math.ceil(num_pixels / tile_size)
+        self.per_device = math.ceil(total_tiles / len(devices))
+        self.num_pixels = num_pixels
+        self.devices = devices
+        self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
+        # the scene's arrays are copied to every device once, not once per pass
+        self.scenes = [jax.device_put(scene, d) for d in devices]
+        self.seeds = [jax.device_put(jnp.uint32(seed), d) for d in devices]
+        self.firsts = [jax.device_put(jnp.int32(k * self.per_device), d)
+                       for k, d in enumerate(devices)]
+        self.compiled: dict[int, list] = {}  # samples per pass -> one executable per device
+
+    def compile(self, count: int) -> float:
+        """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
+        t0 = time.perf_counter()
+        self.compiled[count] = [
+            _render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, count=count,
+                                **self.static).compile()
+            for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
+                                    strict=True)]
+        return time.perf_counter() - t0
+
+    def __call__(self, start: int, count: int) -> _Sums:
+        if count not in self.compiled:
+            self.compile(count)
+        # dispatch to every device first (asynchronously), then gather on the host
+        outs = [exe(sc, sd, jax.device_put(jnp.int32(start), d), f)
+                for exe, sc, sd, f, d in zip(self.compiled[count], self.scenes, self.seeds,
+                                             self.firsts, self.devices, strict=True)]
+        host = [jax.tree.map(np.asarray, o) for o in outs]
+        return jax.tree.map(lambda *xs: np.concatenate(xs)[: self.num_pixels], *host)
 
 
 def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed: int = 0, *,
@@ -140,7 +179,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
             about 1/16 of them when a time budget or target error is set).
         time_budget: stop after the pass during which this many seconds have elapsed.
         target_error: stop once the mean relative standard error falls below this.
-        tile_size: pixels per tile; batch_size: tiles evaluated at once (memory ∝ their product).
+        tile_size: pixels per tile (rounded up to a multiple of 16).
+        batch_size: tiles evaluated at once (memory ∝ tile_size · batch_size).
         devices: how many of ``jax.devices()`` to split the tiles over (default: all).
         progress: show a tqdm bar (default: when more than one pass runs).
 
@@ -158,8 +198,11 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
     if tile_size <= 0 or batch_size <= 0:
         raise ValueError("tile_size and batch_size must be positive")
     num_devices = len(jax.devices()) if devices is None else int(devices)
-    if not 1 <= num_devices <= len(jax.devices()):
+    if not isinstance(num_devices, int) or not 1 <= num_devices <= len(jax.devices()):
         raise ValueError(f"devices must be between 1 and {len(jax.devices())}, got {devices}")
+    # every pixel must take the same vectorised code path (XLA's remainder loop may round
+    # differently), so tiles hold a whole number of 16-lane vectors
+    tile_size = LANES * math.ceil(int(tile_size) / LANES)
     adaptive = time_budget is not None or target_error is not None
     if spp_per_pass is None:
         spp_per_pass = max(1, spp // 16) if adaptive else spp
@@ -167,12 +210,10 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
     # the estimator decides how triangle lights are sampled (a static property of the lights)
     scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
 
-    kwargs = dict(est=est, sampler=sampler, spp_total=int(spp), count=spp_per_pass,
-                  tile_size=int(tile_size), batch_size=int(batch_size), num_devices=num_devices)
-    seed_arr = jnp.uint32(seed)
+    run = _Pass(scene, seed, jax.devices()[:num_devices], tile_size, est=est, sampler=sampler,
+                spp_total=int(spp), batch_size=int(batch_size))
     t0 = time.perf_counter()
-    compiled = _render_pass.lower(scene, seed_arr, jnp.int32(0), **kwargs).compile()
-    t_compile = time.perf_counter() - t0
+    t_compile = run.compile(spp_per_pass)
 
     num_passes = math.ceil(spp / spp_per_pass)
     show = progress if progress is not None else num_passes > 1
@@ -181,12 +222,9 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
     done, passes, stopped_by = 0, 0, "spp"
     t_start = time.perf_counter()
     while done < spp:
+        # a shorter last pass compiles its own program (count is static)
         count = min(spp_per_pass, spp - done)
-        if count != spp_per_pass:  # a shorter last pass needs its own program
-            sums = _render_pass(scene, seed_arr, jnp.int32(done), **{**kwargs, "count": count})
-        else:
-            sums = compiled(scene, seed_arr, jnp.int32(done))
-        sums = jax.tree.map(np.asarray, sums)
+        sums = run(done, count)
         if s1 is None:
             s1, s2, bad = (sums.s1.astype(np.float64), sums.s2.astype(np.float64),
                            sums.bad.astype(np.int64))
