@@ -74,8 +74,10 @@ def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: in
             ax.set_xlabel("x")
         else:
             # directions: (x, y) projection coloured by z; 2-D points as they are
-            c = x[:, 2] if spec.dim == 3 else None
-            ax.scatter(x[:, 0], x[:, 1], s=1, c=c, cmap="viridis")
+            if spec.dim == 3:
+                ax.scatter(x[:, 0], x[:, 1], s=1, c=x[:, 2], cmap="viridis")
+            else:
+                ax.scatter(x[:, 0], x[:, 1], s=1)
             ax.set_aspect("equal")
         label = ", ".join(f"{np.round(np.asarray(p), 3).tolist()}" for p in params)
         ax.set_title(f"{spec.name}({label})"[:48], fontsize=8)

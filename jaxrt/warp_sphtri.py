@@ -21,6 +21,12 @@ Degenerate cases, all handled without NaN:
 - Ω close to 2π (the shading point just above the triangle's interior): Arvo's formulas are
   clamped to their valid ranges.
 
+Precision (known gap): in float32, Arvo's ``cos b'`` of the sub-triangle's new vertex loses
+digits through ``√(1 − cos²b')`` when that vertex is close to ``a`` (small ``u₀``): the direction
+is then off by up to ~3e-4 rad at ``u₀ = 4.5e-5`` for a typical triangle and ~4e-3 rad near a
+hemisphere (elsewhere ~1e-5). The samples stay inside the triangle and the density stays
+``1/Ω``; only the stratification of ``u₀ → 0`` is blurred.
+
 References: Arvo 1995, "Stratified sampling of spherical triangles" (SIGGRAPH); Van Oosterom
 & Strackee 1983, "The solid angle of a plane triangle" (IEEE TBME); pbrt-v4 §6.5.4.
 """

@@ -18,7 +18,8 @@ import numpy as np
 import pytest
 
 from jaxrt import warp as W
-from jaxrt.chi2_domains import SQUARE, Domain, resolve_domain
+from jaxrt.chi2_domains import Domain
+from jaxrt.gallery import registry_domain
 from jaxrt.testing import chi2_test
 
 CASES = [
@@ -69,20 +70,8 @@ def pdf_of(spec, args):
 
 
 def domain_of(spec) -> Domain:
-    """Harness domain of a registry entry; ``("square", lo, hi)`` is built here."""
-    d = spec.domain
-    if isinstance(d, tuple) and d[0] == "square":
-        lo, hi = float(d[1]), float(d[2])
-        w = hi - lo
-        tol = 1e-5 * w
-        return SQUARE._replace(
-            name=f"square[{lo:g}, {hi:g}]",
-            to_cell_coords=lambda x: (x - lo) / w,
-            from_cell_coords=lambda s: lo + w * s,
-            jacobian=w * w,
-            in_domain=lambda x: jnp.all(jnp.isfinite(x) & (x >= lo - tol) & (x <= hi + tol)),
-        )
-    return resolve_domain(d)
+    """Harness domain of a registry entry (``("square", lo, hi)`` built by the gallery)."""
+    return registry_domain(spec)
 
 
 def uniform(n, dtype, seed=0):
@@ -249,11 +238,12 @@ def _check_contract(spec, params, dtype):
     return out
 
 
-# Arvo's sampler in float32: cos b' = q of the sub-triangle's new vertex loses digits as
-# √(1 − q²) when c' is close to a (small u₀), ~7e-5 rad measured; near a hemisphere the
-# trigonometry is ill-conditioned and the result moves by up to ~1e-3 (known gap)
-ATOL_F32 = {("spherical_triangle", i): 2e-4 for i in range(5)}
-ATOL_F32[("spherical_triangle", 3)] = 2e-3
+# Arvo's sampler in float32 (known gap): cos b' = q of the sub-triangle's new vertex loses
+# digits through √(1 − q²) when c' is close to a, i.e. for small u₀; measured 3e-4 rad at
+# u₀ = 4.5e-5 (wedge) and 3.6e-3 rad near a hemisphere. Away from u₀ → 0 it is ~1e-5.
+ATOL_F32 = {("spherical_triangle", i): 1e-4 for i in range(5)}
+ATOL_F32[("spherical_triangle", 3)] = 1e-3
+ATOL_F32_SMALL_U0 = 5e-3  # spherical triangle, u₀ < 1e-3 only
 
 
 @pytest.mark.parametrize("spec, params", CONTRACT_CASES)
@@ -267,7 +257,14 @@ def test_contract(spec, params):
     # point across a support edge
     atol = ATOL_F32.get(case_id(spec, params), 3e-5)
     rnd = slice(0, N_RANDOM)
-    np.testing.assert_allclose(np.asarray(out32["x"])[rnd], x64[rnd], atol=atol)
+    x32 = np.asarray(out32["x"])[rnd]
+    if spec.name == "spherical_triangle":
+        small = np.asarray(uniform(N_RANDOM, jnp.float32)[:, 0] < 1e-3)
+        np.testing.assert_allclose(x32[small], x64[rnd][small], atol=ATOL_F32_SMALL_U0)
+        x32, x64 = x32[~small], x64[rnd][~small]
+    else:
+        x64 = x64[rnd]
+    np.testing.assert_allclose(x32, x64, atol=atol)
     d32 = np.asarray(out32["pdf"])[rnd]
     rel = np.abs(d32 - d64[rnd]) / d64[rnd]
     assert np.quantile(rel, 0.99) < 1e-3, np.max(rel)
