@@ -143,8 +143,20 @@ def test_directional_light_exact():
 # equals the pdf the sampler reported.
 
 
-@pytest.mark.parametrize("name", sorted(CONFIGS))
+# Every configuration in float32; in float64 the default run keeps two, the slow run all.
+PDF_CASES = [pytest.param(n, False, id=f"f32-{n}") for n in sorted(CONFIGS)] + [
+    pytest.param(n, True, id=f"x64-{n}",
+                 marks=() if n in ("tri_sa", "sphere_far") else pytest.mark.slow)
+    for n in sorted(CONFIGS)]
+
+
+@pytest.mark.parametrize("name, x64", PDF_CASES)
 def test_pdf_matches_sample(name, x64):
+    with jax.enable_x64(x64):
+        _check_pdf_matches_sample(name, x64)
+
+
+def _check_pdf_matches_sample(name, x64):
     lights, p = build(name)
     dtype = jnp.result_type(float)
     s = sample_batch(lights, p, N_UP, uniforms(4096, dtype=dtype))
