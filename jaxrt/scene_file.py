@@ -115,6 +115,8 @@ def _rotation(axis, degrees) -> np.ndarray:
 def _transform(ctx: _Ctx, t: dict | None, v: np.ndarray, where: str) -> np.ndarray:
     if t is None:
         return v
+    if not isinstance(t, dict):
+        ctx.fail(where, f"expected an object with scale/rotate/translate, got {t!r}")
     try:
         s = np.broadcast_to(np.asarray(t.get("scale", 1.0), np.float64), (3,))
         v = v * s
@@ -124,11 +126,19 @@ def _transform(ctx: _Ctx, t: dict | None, v: np.ndarray, where: str) -> np.ndarr
                 ctx.fail(where, "rotate must be [axis_x, axis_y, axis_z, degrees]")
             v = v @ _rotation(r[:3], r[3]).T
         return v + np.asarray(t.get("translate", [0, 0, 0]), np.float64)
+    except FileFormatError:
+        raise
     except (TypeError, ValueError) as e:
         ctx.fail(where, f"bad transform: {e}")
 
 
+def _missing(ctx: _Ctx, where: str, what: str, path: Path):
+    raise FileNotFoundError(f"{ctx.path}: {where}: {what} not found: {path}")
+
+
 def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> list:
+    if not isinstance(entry, dict):
+        ctx.fail(where, f"expected a mesh object, got {entry!r}")
     override = None
     if "material" in entry:
         name = entry["material"]
@@ -142,6 +152,8 @@ def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> 
     try:
         if "file" in entry:
             path = base / entry["file"]
+            if not path.exists():
+                _missing(ctx, where, "mesh file", path)
             for md in load_meshes(path):
                 v = _transform(ctx, entry.get("transform"), md.vertices.astype(np.float64),
                                f"{where}.transform")
@@ -185,6 +197,8 @@ def _light(ctx: _Ctx, spec: dict, where: str, base: Path):
             return lt.sphere_light(g("center"), g("radius"), _rgb(g("radiance")))
         if kind == "environment":
             if "file" in spec:
+                if not (base / spec["file"]).exists():
+                    _missing(ctx, where, "environment map", base / spec["file"])
                 image, _ = read_exr(base / spec["file"])
                 return lt.environment_map(image * float(spec.get("scale", 1.0)))
             return lt.constant_environment(_rgb(g("radiance")))

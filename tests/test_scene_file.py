@@ -268,8 +268,6 @@ def test_bad_transform_value(tmp_path):
     _expect(tmp_path, _doc(meshes=meshes), "meshes[0].transform")
 
 
-@pytest.mark.xfail(strict=True, reason="scene_file bug: _transform re-wraps its own "
-                   "FileFormatError (a ValueError), so the file is named twice")
 def test_bad_rotate_length(tmp_path):
     meshes = [{"vertices": QUAD_V, "faces": QUAD_F, "material": "white",
                "transform": {"rotate": [0, 1, 0]}}]
@@ -278,22 +276,16 @@ def test_bad_rotate_length(tmp_path):
     assert msg.count(str(tmp_path / "scene.json")) == 1, msg
 
 
-@pytest.mark.xfail(strict=True, raises=AttributeError, reason="scene_file bug: a "
-                   "non-object transform raises a bare AttributeError (t.get)")
 def test_transform_not_an_object(tmp_path):
     meshes = [{"vertices": QUAD_V, "faces": QUAD_F, "material": "white",
                "transform": [1, 0, 0]}]
     _expect(tmp_path, _doc(meshes=meshes), "meshes[0].transform")
 
 
-@pytest.mark.xfail(strict=True, raises=AttributeError, reason="scene_file bug: a "
-                   "non-object mesh entry raises a bare AttributeError (entry.get)")
 def test_mesh_entry_not_an_object(tmp_path):
     _expect(tmp_path, _doc(meshes=["room.obj"]), "meshes[0]")
 
 
-@pytest.mark.xfail(strict=True, reason="scene_file bug: a missing mesh file raises "
-                   "meshio's FileNotFoundError naming neither scene.json nor meshes[i]")
 def test_missing_mesh_file(tmp_path):
     meshes = [{"vertices": QUAD_V, "faces": QUAD_F, "material": "white"},
               {"file": "nowhere.obj"}]
@@ -301,8 +293,6 @@ def test_missing_mesh_file(tmp_path):
             exc=(FileFormatError, FileNotFoundError))
 
 
-@pytest.mark.xfail(strict=True, reason="scene_file bug: a missing env map raises "
-                   "read_exr's FileNotFoundError naming neither scene.json nor lights[i]")
 def test_missing_environment_file(tmp_path):
     _expect(tmp_path, _doc(lights=[{"type": "environment", "file": "sky.exr"}]), "lights[0]",
             "sky.exr", exc=(FileFormatError, FileNotFoundError))
