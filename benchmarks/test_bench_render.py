@@ -13,7 +13,9 @@ The full matrix is one factor at a time around a baseline (``cornell_box``, ``mi
 float32, independent sampler, ``accel="auto"``, tiles of 256 pixels, 1 CPU device), plus every
 estimator × every built-in scene × {64², 256²}. A case records ``samples_per_s`` (median over
 rounds; ``samples_per_s_best``), ``compile_s`` (the first ``render`` call's
-``timings['compile']``: near 0 when an earlier case compiled the same program) and the case.
+``timings['compile']``: near 0 when an earlier case compiled the same program),
+``speed_vs_baseline`` (its samples/s over the baseline's, rendered alternately in the same
+rounds: the figure to trust on a loaded machine) and the case.
 
 "Model only what the scene needs" (issue 6, item 4) is measured as *paired* ratios (the two
 variants alternate within each round, so machine load hits both alike):
@@ -56,28 +58,48 @@ def _ctx(dtype: str):
     return jax.enable_x64(True) if dtype == "float64" else contextlib.nullcontext()
 
 
+_BASELINE: dict = {}
+
+
+def _baseline_seconds(seed: int) -> float:
+    """Render time of the baseline (cornell_box 64², mis, float32, 2 spp), compiled once."""
+    if "scene" not in _BASELINE:
+        _BASELINE["scene"] = cornell.cornell_box(64, 64)
+        render(_BASELINE["scene"], "mis", spp=SPP)
+    return render(_BASELINE["scene"], "mis", spp=SPP, seed=seed).timings["render"]
+
+
 def _bench(benchmark, make_scene, estimator="mis", spp=SPP, dtype="float32", rounds=ROUNDS,
            **kw):
-    """Compile with one render, then time ``rounds`` renders; fills ``extra_info``."""
+    """Compile with one render, then time ``rounds`` renders; fills ``extra_info``.
+
+    Each round also renders the baseline (outside any x64 context), so
+    ``speed_vs_baseline`` (samples/s ratio, same load) is a paired figure.
+    """
     with _ctx(dtype):
         scene = make_scene()
         first = render(scene, estimator, spp=spp, seed=0, **kw)
-        times = []
+    _baseline_seconds(0)
+    times, base = [], []
 
-        def run():
+    def run():
+        base.append(_baseline_seconds(len(base) + 1))
+        with _ctx(dtype):
             r = render(scene, estimator, spp=spp, seed=len(times) + 1, **kw)
-            times.append(r.timings["render"])
-            return r
+        times.append(r.timings["render"])
+        return r
 
-        res = benchmark.pedantic(run, rounds=rounds, iterations=1)
+    res = benchmark.pedantic(run, rounds=rounds, iterations=1)
     n = spp * scene.width * scene.height
     info = {"samples_per_s": n / _median(times), "samples_per_s_best": n / min(times),
             "compile_s": first.timings["compile"], "samples": n, "spp": spp,
+            "speed_vs_baseline": n / _median(times) / (SPP * 64 * 64 / _median(base)),
             "size": f"{scene.width}x{scene.height}", "estimator": str(estimator),
             "dtype": dtype, **{k: str(v) for k, v in kw.items()}}
     benchmark.extra_info.update(info)
     print(f"\n  {benchmark.name}: {info['samples_per_s'] / 1e6:.3f} Msamples/s "
-          f"(best {info['samples_per_s_best'] / 1e6:.3f}), compile {info['compile_s']:.1f} s")
+          f"(best {info['samples_per_s_best'] / 1e6:.3f}), compile {info['compile_s']:.1f} s, "
+          f"×{info['speed_vs_baseline']:.2f} the baseline's samples/s in the same rounds")
     # the renders are real: finite, non-negative radiance, no dropped samples
     assert res.nonfinite == 0, "a benchmark render produced NaN/Inf samples"
     assert np.all(np.isfinite(res.image)) and res.image.min() >= 0
