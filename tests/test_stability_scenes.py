@@ -84,8 +84,11 @@ def _check_same(ref, r, what, pixel_floor, mean_floor):
     excess = np.abs(b - a) - 5 * np.hypot(sa, sb) - pixel_floor * np.abs(a)
     assert np.all(excess <= 0), (what, np.argwhere(excess > 0)[:5].tolist(),
                                  float(excess.max()))
-    m_a, m_b = a.mean(), b.mean()
-    se = np.sqrt((sa**2).sum() + (sb**2).sum()) / a.size
+    # the mean over pixels that do not see the emitter (whose σ would swamp everything else)
+    keep = np.all(sa < 0.05, axis=-1)
+    assert keep.sum() > 100, keep.sum()
+    m_a, m_b = a[keep].mean(), b[keep].mean()
+    se = np.sqrt((sa[keep] ** 2).sum() + (sb[keep] ** 2).sum()) / a[keep].size
     assert abs(m_b - m_a) <= 5 * se + mean_floor * m_a, (what, m_b, m_a, se)
 
 
@@ -101,10 +104,10 @@ def _reference(est):
 SCALE_FLOOR = 1e-4
 # 1e5 away, float32 hit points are off by up to 2^-8 m and rays start ~γ₇·1e5 ≈ 4 cm off the
 # surface (pbrt's bound), which moves the contact shadows of the blocks: measured beyond 5σ,
-# at most 31% of a (dark) pixel and 0.38% on the image mean. A self-shadowed box loses the
-# direct light of every lit pixel (−100%), far outside both floors.
+# at most 31% of a (dark) pixel and −1.0% on the mean of the pixels not seeing the light. A
+# self-shadowed box loses the direct light of every lit pixel (−100%); the MIS bug below +92%.
 SHIFT_PIXEL_FLOOR = 0.4
-SHIFT_MEAN_FLOOR = 0.01
+SHIFT_MEAN_FLOOR = 0.02
 
 
 @pytest.mark.slow
@@ -177,7 +180,7 @@ def test_box_floor_point_against_lambert(shift):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason=(
-    "MIS overcounts 1e5 from the origin (image mean +35%): pdf_li's solid-angle density "
+    "MIS overcounts 1e5 from the origin (+92% off the light): pdf_li's solid-angle density "
     "re-tests whether wi passes through the triangle from the UN-offset point x.hit.p, while "
     "the BSDF ray that hit it started ~4 cm off the surface; near the light's edges and its "
     "diagonal the density is 0, the MIS weight of the BSDF sample becomes 1 (jaxrt/lights/"
