@@ -269,11 +269,12 @@ def test_contract(spec, params):
     rel = np.abs(d32 - d64[rnd]) / d64[rnd]
     assert np.quantile(rel, 0.99) < 1e-3, np.max(rel)
     # vmap equals a loop of jitted single samples, and jit equals eager
+    # (the batched result is the first rows of the contract batch: no extra compile)
     one, _ = _contract_fn(spec, params, jnp.float32)
-    u = uniform(3, jnp.float32, seed=5)
+    u = uniform(3, jnp.float32)
     one_jit = jax.jit(one)
     x_loop = np.stack([np.asarray(one_jit(ui)["x"]) for ui in u])
-    x_vmap = np.asarray(jax.jit(jax.vmap(one))(u)["x"])
+    x_vmap = np.asarray(out32["x"])[:3]
     x_eager = np.asarray(one(u[0])["x"])
     # XLA fuses and vectorises float ops differently batched or not: a few ulps
     np.testing.assert_allclose(x_vmap, x_loop, rtol=2e-5, atol=max(atol, 2e-6))
