@@ -10,8 +10,7 @@ Translation is the hard case: the hit points carry a rounding error of ~γ₇·1
 rays that are not pushed past it self-intersect and the image darkens.
 
 All renders use one seed and share the scene structure, so each estimator compiles once. The
-translated box is rendered with light sampling alone (default suite) and with MIS, which
-currently fails far from the origin (strict xfail, see its reason).
+translated box is rendered with light sampling alone (default suite) and with MIS (slow).
 """
 
 from __future__ import annotations
@@ -105,7 +104,8 @@ SCALE_FLOOR = 1e-4
 # 1e5 away, float32 hit points are off by up to 2^-8 m and rays start ~γ₇·1e5 ≈ 4 cm off the
 # surface (pbrt's bound), which moves the contact shadows of the blocks: measured beyond 5σ,
 # at most 31% of a (dark) pixel and −1.0% on the mean of the pixels not seeing the light. A
-# self-shadowed box loses the direct light of every lit pixel (−100%); the MIS bug below +92%.
+# self-shadowed box loses the direct light of every lit pixel (−100%); the fixed MIS bug
+# (pdf_li zero near the light's edges) gave +92%.
 SHIFT_PIXEL_FLOOR = 0.4
 SHIFT_MEAN_FLOOR = 0.02
 
@@ -179,13 +179,10 @@ def test_box_floor_point_against_lambert(shift):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason=(
-    "MIS overcounts 1e5 from the origin (+92% off the light): pdf_li's solid-angle density "
-    "re-tests whether wi passes through the triangle from the UN-offset point x.hit.p, while "
-    "the BSDF ray that hit it started ~4 cm off the surface; near the light's edges and its "
-    "diagonal the density is 0, the MIS weight of the BSDF sample becomes 1 (jaxrt/lights/"
-    "area.py pdf_triangle_solid_angle via warp_sphtri._inside; reported)"))
 def test_translated_box_renders_the_same_mis():
+    """MIS 1e5 from the origin matches the box at the origin. Regression: pdf_li used to
+    re-test whether the BSDF ray passes through the light from the un-offset point and
+    returned 0 near the light's edges (MIS weight 1, +92% off the light)."""
     ref = _reference("mis")
     _check_same(ref, _render("t1e5", "mis", shift=SHIFT), "translated 1e5, MIS",
                 SHIFT_PIXEL_FLOOR, SHIFT_MEAN_FLOOR)
