@@ -11,6 +11,13 @@ maths (relative errors of a few 1e-5 measured against x64). Hemisphere and BSDF 
 cannot find lights that subtend almost no solid angle (a triangle 1e4 away covers 1e-8 sr:
 with 2^15 samples the chance of one hit is 1e-4), so those cases test only the estimators
 that sample the light; delta lights are invisible to them altogether (tested as such).
+
+Area sampling cannot resolve a receiver 1e-4 under a unit triangle: the geometry term peaks
+like ``h²/(r² + h²)²`` in a disc of radius h = 1e-4 around the foot point, which a uniform point
+of the triangle lands in with probability ~7e-9. Unbiased but useless at 2^15 samples (it
+returns ~1e-3 of the answer with a tiny σ); that is the lecture's argument for solid-angle
+sampling, and :func:`test_area_sampling_misses_the_near_peak` shows it. The same geometry
+scaled down (a 1e-4 triangle 1e-4 away) is tested with every estimator.
 """
 
 import jax
@@ -97,6 +104,7 @@ CASES = {
     "rect_horizon_clipped": lambda: _polygon_case(RECT, n=_rot_x(80) @ Z),
     "triangle_1e-4_away": lambda: _polygon_case(_triangle(1e-4, 1.0)),
     "triangle_1e4_away": lambda: _polygon_case(_triangle(1e4, 1.0), radiance=1e8),
+    "small_triangle_1e-4_away": lambda: _polygon_case(_triangle(1e-4, 1e-4)),
     "sphere": lambda: _sphere_case([0.5, 0.0, 2.0], 0.4),
     "sphere_partly_below": lambda: _sphere_case([2.0, 0.0, 0.3], 1.0),
     "environment_furnace": _environment_case,
@@ -106,10 +114,12 @@ CASES = {
 }
 # cases whose light subtends so little solid angle that only light sampling can find it
 TINY = {"triangle_1e4_away"}
+# cases whose geometry term has a peak area sampling cannot find (see the module docstring)
+NEAR = {"triangle_1e-4_away"}
 DELTA = {k for k in CASES if k.startswith("point")}
 # cheap default selection; the full matrix runs in the slow suite
 QUICK = {("mis", "rect_parallel"), ("cosine_hemisphere", "rect_tilted"),
-         ("light_area", "triangle_1e-4_away"), ("light_solid_angle", "triangle_1e4_away"),
+         ("light_area", "small_triangle_1e-4_away"), ("light_solid_angle", "triangle_1e4_away"),
          ("mis_one_sample", "sphere_partly_below"), ("bsdf", "environment_furnace"),
          ("uniform_hemisphere", "rect_horizon_clipped"), ("mis", "point_grazing_89deg")}
 
@@ -122,6 +132,8 @@ def _cases():
                 continue  # tested by test_delta_lights_invisible
             if case in TINY and est in DIRECTION_SAMPLERS:
                 continue  # see the module docstring
+            if case in NEAR and est == "light_area":
+                continue  # test_area_sampling_misses_the_near_peak
             marks = () if (est, case) in QUICK else (pytest.mark.slow,)
             out.append(pytest.param(est, case, marks=marks, id=f"{est}-{case}"))
     return out
@@ -146,6 +158,18 @@ def test_estimator_matches_analytic(est, case):
     assert np.all(np.abs(mean - exact) < bound), (mean, err, exact)
     # a bound that cannot fail is no test: the error must be a real fraction of the value
     assert np.all(err < 0.2 * exact), (err, exact)
+
+
+def test_area_sampling_misses_the_near_peak():
+    """Area sampling 1e-4 under a unit triangle: unbiased, yet far below the answer at 2^15
+    samples (the peak of G is almost never sampled), while its σ looks small. Solid-angle
+    sampling, whose density follows G's 1/r², has no such peak (tested above)."""
+    scene, n, exact = _case("triangle_1e-4_away")
+    r = estimate_at(scene, "light_area", np.zeros(3), n, _wo(n), num_samples=N, seed=7)
+    mean, err = np.asarray(r.mean, np.float64), np.asarray(r.stderr, np.float64)
+    assert np.all(mean < 0.05 * exact), (mean, exact)
+    # the reported error does not cover the gap: why σ-based checks need the NEAR exclusion
+    assert np.all(exact - mean > 20 * err), (mean, err, exact)
 
 
 def _wo(n):

@@ -118,19 +118,25 @@ def test_estimators_agree_pixelwise_on_the_cornell_box():
     """Every estimator against MIS on the Cornell box: z-scores of 4×4-pixel block means.
 
     Blocks of 16 pixels make each mean close to Gaussian even for hemisphere sampling (whose
-    per-pixel distribution is heavy-tailed). For unbiased estimators z ~ N(0, 1): we require
-    |mean z| < 0.25 (the mean of 64 blocks has σ = 0.125) and fewer than 3 of 64 blocks
-    beyond |z| = 3.5 (probability 5e-4 each).
+    per-pixel distribution is heavy-tailed). For unbiased estimators z ~ N(0, 1). Two checks
+    per estimator and channel: the whole-image z (sum of differences over its standard error,
+    ~10^5 samples or more, so Gaussian) within ±4 (false alarm 6e-5 each, 21 checks): scaling
+    the light-area image by 0.99 moves its z by −0.8 (measured), so a global bias of ~5%
+    fails; and fewer than 3 of 64 blocks beyond
+    |z| = 3.5 (probability 5e-4 each), which catches a local one. (An earlier bound on the
+    mean of the block z-scores, |mean z| < 0.25, was only 2σ of that mean: it failed ~5% of
+    the time per estimator with nothing wrong.)
     """
     s = scenes.cornell_box(width=32, height=32)
     ref = render(s, "mis", spp=256, seed=100, progress=False)
-    r_mean, r_err = _blocks(ref.image), np.sqrt(_blocks(ref.stderr**2) / 16)
+    r_mean, r_var = _blocks(ref.image), _blocks(ref.stderr**2) / 16
     for est in ESTIMATORS:
         spp = 1024 if est in ("uniform_hemisphere", "cosine_hemisphere", "bsdf") else 128
         r = render(s, est, spp=spp, seed=1, progress=False)
-        m, e = _blocks(r.image), np.sqrt(_blocks(r.stderr**2) / 16)
-        z = (m - r_mean) / np.sqrt(e**2 + r_err**2 + 1e-12)
-        assert abs(z.mean()) < 0.25, (est, z.mean())
+        m, var = _blocks(r.image), _blocks(r.stderr**2) / 16
+        z = (m - r_mean) / np.sqrt(var + r_var + 1e-12)
+        z_all = (m - r_mean).sum(axis=(0, 1)) / np.sqrt((var + r_var).sum(axis=(0, 1)))
+        assert np.all(np.abs(z_all) < 4), (est, z_all)
         assert np.sum(np.abs(z) > 3.5) < 3, (est, np.sort(np.abs(z).ravel())[-5:])
 
 
