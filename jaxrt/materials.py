@@ -253,9 +253,6 @@ def phong_pdf(m: Material, wo: Array, wi: Array) -> Array:
     """
     p_spec = _phong_spec_prob(m, wo.dtype)
     lobe = warp.square_to_phong_lobe_pdf(to_local(wi, _mirror_dir(wo)), m.exponent.astype(wo.dtype))
-    # the warp's pdf is NaN where round-off makes 1 − cos > 1 at the lobe's horizon (reported
-    # to warp.py's owner); the density there is cos^n ≈ 0
-    lobe = jnp.where(jnp.isnan(lobe), jnp.zeros_like(lobe), lobe)
     pdf = (1 - p_spec) * warp.square_to_cosine_hemisphere_pdf(wi) + p_spec * lobe
     return jnp.where(wo[2] > 0, pdf, 0 * pdf)
 

@@ -117,12 +117,15 @@ def _azimuth_to_square(v: Array) -> Array:
 def _one_minus_cos(v: Array) -> Array:
     """``1 − cos θ`` of a unit local direction, without cancellation near the pole.
 
-    ``1 − z = (x² + y²) / (1 + z)`` for ``z > 0``: exact where ``z`` itself has rounded to 1.
+    ``1 − z = (x² + y²) / (1 + z)`` for ``z > ½``: exact where ``z`` itself has rounded to 1.
+    Below, ``1 − z`` directly (no cancellation there), which also keeps the result below 1 for
+    every ``z > 0`` when ``v`` is a few ulps off unit length (``x² + y²`` can then exceed
+    ``1 − z²``, and ``log1p(−(1 − cos θ))`` in the Phong pdf would be NaN).
     """
     s2 = v[0] * v[0] + v[1] * v[1]
-    pos = v[2] > 0
-    safe = jnp.where(pos, 1 + v[2], jnp.ones_like(v[2]))
-    return jnp.where(pos, s2 / safe, 1 - v[2])
+    near_pole = v[2] > 0.5
+    safe = jnp.where(near_pole, 1 + v[2], jnp.ones_like(v[2]))
+    return jnp.where(near_pole, s2 / safe, 1 - v[2])
 
 
 # ----------------------------------------------------------------------------- disks
@@ -434,10 +437,16 @@ def square_to_phong_lobe(u: Array, exponent: Array) -> Array:
 
 
 def _cos_power(v: Array, n: Array) -> Array:
-    """``cosⁿθ = exp(n log1p(−(1 − cos θ)))`` for ``z > 0``: no underflow-to-NaN, exact at n=0."""
+    """``cosⁿθ = exp(n log cos θ)`` for ``z > 0``: no underflow-to-NaN, exact at n=0.
+
+    ``log cos θ = log1p(−(1 − cos θ))`` near the pole (accurate for sharp lobes) and ``log z``
+    below ``z = ½`` (finite for every ``z > 0``, even when ``1 − z`` rounds to 1).
+    """
     om = _one_minus_cos(v)
     pos = v[2] > 0
-    log_cos = jnp.log1p(-jnp.where(pos, om, jnp.zeros_like(om)))
+    near_pole = v[2] > 0.5
+    log_cos = jnp.where(near_pole, jnp.log1p(-jnp.where(near_pole, om, jnp.zeros_like(om))),
+                        jnp.log(jnp.where(pos, v[2], jnp.ones_like(v[2]))))
     return jnp.where(pos, jnp.exp(n * log_cos), jnp.where(n == 0, 1 + 0 * om, 0 * om))
 
 

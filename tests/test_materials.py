@@ -336,3 +336,21 @@ def test_bsdf_albedo_helper():
     np.testing.assert_allclose(a, [0.7, 0.5, 0.2], rtol=1e-6)  # constant weight kd
     np.testing.assert_array_less(e, 1e-6)
     assert a.dtype == jnp.float32
+
+
+def test_phong_lobe_pdf_finite_for_slightly_non_unit_directions():
+    """Regression: at the lobe's horizon a direction a few ulps longer than unit made
+    ``1 − cos θ`` exceed 1 and ``log1p(−(1 − cos θ))`` NaN. Now finite, ≥ 0, and equal to the
+    float64 density within float32 rounding where that is representable."""
+    rng = np.random.default_rng(5)
+    phi = rng.uniform(0, 2 * np.pi, 4096)
+    z = 10.0 ** rng.uniform(-8, -1, 4096)
+    s = np.sqrt(1 - z * z) * (1 + 3e-7)  # up to ~3 ulps too long
+    v = np.stack([s * np.cos(phi), s * np.sin(phi), z], -1).astype(np.float32)
+    for n in (0.0, 1.0, 50.0, 1e4):
+        pdf = np.asarray(jax.vmap(lambda w, n=n: warp.square_to_phong_lobe_pdf(
+            w, jnp.float32(n)))(jnp.asarray(v)))
+        assert np.all(np.isfinite(pdf)) and np.all(pdf >= 0), n
+        exact = (n + 1) / (2 * np.pi) * z**n
+        # 1 − cos is taken directly below z = ½, so cosⁿ keeps its float32 relative accuracy
+        assert np.allclose(pdf, exact, rtol=1e-4 * max(n, 1), atol=1e-30), n
