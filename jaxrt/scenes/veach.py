@@ -19,8 +19,9 @@ PLATE_ROUGHNESS = (0.35, 0.15, 0.05, 0.01)  # GGX α, top plate first
 LIGHT_RADII = (0.9, 0.3, 0.1, 0.03)  # left to right
 LIGHT_POWER_RADIANCE = 0.8  # radiance × r² (same power for every light)
 EYE = np.array([0.0, 2.0, 15.0])
-TARGET = np.array([0.0, -1.0, 2.5])
+TARGET = np.array([0.0, 0.0, 2.5])
 LIGHT_Y, LIGHT_Z = 4.0, -2.0
+FOV_DEG = 40.0  # vertical: the four lights (16° above the view axis) and all plates in frame
 
 
 def _plate(centre: np.ndarray, half_width: float, half_depth: float):
@@ -56,6 +57,6 @@ def veach_mis(width: int = 384, height: int = 256, **options):
     meshes.append(mesh(floor, quad, mt.diffuse(0.1), name="floor"))
     spheres = [lt.sphere_light([x, LIGHT_Y, LIGHT_Z], r, [LIGHT_POWER_RADIANCE / r**2] * 3)
                for x, r in zip((-3.75, -1.25, 1.25, 3.75), LIGHT_RADII, strict=True)]
-    cam = cm.look_at(eye=EYE, target=TARGET, up=[0, 1, 0], fov_deg=35.0, width=width,
+    cam = cm.look_at(eye=EYE, target=TARGET, up=[0, 1, 0], fov_deg=FOV_DEG, width=width,
                      height=height)
     return build_scene(meshes, cam, spheres, **options)
