@@ -139,8 +139,11 @@ def _rotation(axis, deg):
 
 
 @pytest.mark.parametrize("shift", [0.0, 1e3, 1e4, pytest.param(1e5, marks=pytest.mark.xfail(
-    strict=True, reason="1e5 away, ~2.5% of the floor point's shadow rays are falsely occluded "
-    "(estimate 2.5% dark, σ ×5; forcing visibility on matches the oracle; reported)"))],
+    strict=True, reason="1e5 away, 2.2% of the floor point's shadow rays are falsely occluded by "
+    "the tall block: pbrt-style offsets move both ends of each shadow ray off their surfaces by "
+    "the float32 error bound, γ₇·1e5·|n|₁ ≈ 6 cm, and sightlines that pass within that of the "
+    "block's top edge now cut it (removing the block gives 1.00003× the oracle; a float64 "
+    "model of the offsets alone occludes 0.9%). A limit of error-bound offsets, not fixed"))],
     ids=["origin", "shift-1e3", "shift-1e4", "shift-1e5"])
 def test_box_floor_point_against_lambert(shift):
     """Light sampling at a floor point of the rotated box, near and 1e5 from the origin.
