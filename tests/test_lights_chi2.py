@@ -132,16 +132,10 @@ def _run(name, num_samples, resolution, pdf_override=None, seed=1, dtype=jnp.flo
                      resolution=resolution, seed=seed, num_tests=len(SPHERE_DOMAIN))
 
 
-def _params(names):
-    """tri_sa_close in float32 fails because of the warp (see the xfail reason); run it in x64."""
-    marks = pytest.mark.xfail(strict=True, reason=(
-        "jaxrt.warp.square_to_spherical_triangle in float32 is far from uniform when Ω is "
-        "close to 2π (χ² ≈ 1e4 on the warp alone; passes in float64) — reported to its owner"))
-    return [pytest.param(n, marks=marks) if n == "tri_sa_close" else n for n in names]
-
-
 # The default run fits one light of each sampling technique; the slow run fits all of them.
-DEFAULT = ("tri_area", "sphere_near", "env_map", "env_const")
+# tri_sa_close (Ω within 2e-3 of 2π) is the hard case of solid-angle triangle sampling: float32
+# failed it (χ² ≈ 1e4) until warp_sphtri split the triangle at its closest point.
+DEFAULT = ("tri_area", "tri_sa_close", "sphere_near", "env_map", "env_const")
 
 
 @pytest.mark.parametrize("name", DEFAULT)
@@ -158,7 +152,7 @@ def test_chi2_triangle_near_2pi_x64(enable_x64):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", _params(sorted(SPHERE_DOMAIN)))
+@pytest.mark.parametrize("name", sorted(SPHERE_DOMAIN))
 def test_chi2_sphere_domain_all(name):
     result = _run(name, 200_000, (48, 24))
     assert _accept(result, 200_000), str(result)
