@@ -61,6 +61,7 @@ from jaxrt.scene import (
     emitted,
     intersect,
     light_normal,
+    light_point_error,
     material_at,
     shading_normal,
     unoccluded,
@@ -216,12 +217,17 @@ def _light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) 
 
 
 def _visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
-    """Shadow ray from x to the sampled light point (or towards an infinitely far light)."""
+    """Shadow ray from x to the sampled light point (or towards an infinitely far light).
+
+    The target's error bound is :func:`jaxrt.scene.light_point_error` (the light's extent
+    seen from ``p``, not only ``|q|``).
+    """
     finite = jnp.isfinite(ls.dist)
     dist = jnp.where(finite, ls.dist, 1)
     q = x.hit.p + dist * ls.wi
     n_q = light_normal(scene, ls.light, q)
-    o_f, d_f, t_f = spawn_ray_to(x.hit.p, x.n, q, n_q, x.hit.p_error, default_point_error(q))
+    q_error = light_point_error(scene, ls.light, x.hit.p, q)
+    o_f, d_f, t_f = spawn_ray_to(x.hit.p, x.n, q, n_q, x.hit.p_error, q_error)
     o_i, d_i = spawn_ray(x.hit.p, x.n, ls.wi, x.hit.p_error)
     o = jnp.where(finite, o_f, o_i)
     d = jnp.where(finite, d_f, d_i)

@@ -296,19 +296,11 @@ def _check_estimate(r, exact, what, floor=FLOOR):
     assert np.all(np.abs(mean - exact) <= 5 * se + floor * exact), (what, mean, se, exact)
 
 
-# Triangles covering nearly a hemisphere (size 1e4 at height 1, or a unit triangle 1e-5 away)
-# found float32 Arvo sampling biased here (E[cos θ] 0.26 instead of 0.50); since warp_sphtri
-# splits the triangle at its point closest to the shading point, sample_li is unbiased for them
-# (li cos/pdf: 0.4999 ± 0.0011 of 0.5, test_large_spherical_triangle_sample_distribution). The
-# estimates through estimate_at still come out 6-13% low for a second reason: 11-17% of the
-# shadow rays to the sampled light point report the light itself as an occluder, because
-# estimators._visible bounds the light point's error by default_point_error(q) = γ₇|q|, far
-# below the rounding of an intersection with a triangle whose vertices are ~|size| (with
-# γ₇·max|vertex| instead, none is occluded). For estimators.py's owner; strict, so these
-# flip to failures once it is fixed.
-SHADOW_XFAIL = pytest.mark.xfail(strict=True, reason=(
-    "estimators._visible: shadow ray self-intersects a large/near triangle light "
-    "(q_error = γ₇|q| too small)"))
+# Triangles covering nearly a hemisphere (size 1e4 at height 1, or a unit triangle 1e-5 away):
+# regressions for two fixed bugs. Float32 Arvo sampling was biased here (E[cos θ] 0.26 instead
+# of 0.50) until warp_sphtri split the triangle at its point closest to the shading point; and
+# 11-17% of the shadow rays then re-hit the light itself while the light point's error bound
+# was γ₇|q| rather than the light's extent seen from p (scene.light_point_error).
 ESTIMATE_CASES = [("triangle-1e-4", "light_solid_angle"), ("sphere-1e4", "mis")]
 # light_area on the 1e4 triangle is left out: unbiased, but its variance ∝ A/h² (~1e8 here) is
 # so heavy-tailed that 8192 samples almost never reach the near part (σ̂ is meaningless)
@@ -319,7 +311,7 @@ SLOW_ESTIMATE_CASES = [("triangle-1e-4", "light_area"), ("triangle-1e-4", "mis")
 
 @pytest.mark.parametrize("name, est", ESTIMATE_CASES + [
     pytest.param(*c, marks=pytest.mark.slow) for c in SLOW_ESTIMATE_CASES] + [
-    pytest.param("triangle-1e4", est, marks=[pytest.mark.slow, SHADOW_XFAIL])
+    pytest.param("triangle-1e4", est, marks=pytest.mark.slow)
     for est in ("light_solid_angle", "mis")])
 def test_estimate_extreme_lights_against_oracle(name, est):
     scene, exact = _scene_for(name)
@@ -353,7 +345,7 @@ H_NEAR = 1e-5
     (1e-4, "light_solid_angle"), (1e-4, "mis"),
     pytest.param(1e-4, "light_area", marks=pytest.mark.slow),
     # a unit triangle 1e-5 away covers a near-hemisphere (the float32 Arvo regression above)
-    pytest.param(1.0, "mis", marks=[pytest.mark.slow, SHADOW_XFAIL])])
+    pytest.param(1.0, "mis", marks=pytest.mark.slow)])
 def test_receiver_next_to_area_light(size, est):
     """A receiver 1e-5 below a triangle light: 1/d² near-singular, yet finite and unbiased."""
     tri = _triangle(size, H_NEAR)
