@@ -39,6 +39,7 @@ def test_same_seed_bit_identical_whatever_the_chunking(box16):
     assert not np.array_equal(a.image, c.image)
 
 
+@pytest.mark.slow  # ~30 s: a second compile (or a subprocess); CI runs it
 def test_progressive_passes_match_one_pass(box16):
     one = render(box16, "mis", spp=8, seed=1, progress=False)
     many = render(box16, "mis", spp=8, seed=1, spp_per_pass=2, progress=False)
@@ -88,6 +89,7 @@ def test_mean_and_error_formula():
     assert err[0] == pytest.approx(x.std(ddof=1) / np.sqrt(1000), rel=1e-9)
 
 
+@pytest.mark.slow  # ~30 s: a second compile (or a subprocess); CI runs it
 def test_two_devices_identical_to_one(tmp_path):
     """Sharding tiles over two (host) devices changes nothing in the image."""
     code = textwrap.dedent("""
