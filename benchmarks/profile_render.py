@@ -143,14 +143,19 @@ def hlo_stats(text: str) -> dict:
             "divides": len(re.findall(r"\bdivide\(", text))}
 
 
-def kernel_trace(exe, args, top: int = 15) -> list[tuple[str, int, float]]:
-    """(kernel, calls, ms) of one run recorded with ``jax.profiler`` (perfetto trace)."""
+def _trace_events(exe, args) -> list[dict]:
+    """The perfetto trace events of one run of ``exe(*args)`` recorded with ``jax.profiler``."""
     with tempfile.TemporaryDirectory() as tmp:
         jax.profiler.start_trace(tmp, create_perfetto_trace=True)
         jax.block_until_ready(exe(*args))
         jax.profiler.stop_trace()
         path = glob.glob(os.path.join(tmp, "**", "perfetto_trace.json.gz"), recursive=True)[0]
-        events = json.load(gzip.open(path))["traceEvents"]
+        return json.load(gzip.open(path))["traceEvents"]
+
+
+def kernel_trace(exe, args, top: int = 15) -> list[tuple[str, int, float]]:
+    """(kernel, calls, ms) of one run recorded with ``jax.profiler`` (perfetto trace)."""
+    events = _trace_events(exe, args)
     calls, ms = collections.Counter(), collections.defaultdict(float)
     for e in events:
         name = e.get("name", "")
@@ -208,12 +213,7 @@ def scoped_profile(scene, est) -> tuple[dict, float]:
     text = exe.as_text()
     op_name = dict(re.findall(r"^\s+%(\S+) = .*?op_name=\"([^\"]*)\"", text, re.M))
     jax.block_until_ready(exe(*args))
-    with tempfile.TemporaryDirectory() as tmp:
-        jax.profiler.start_trace(tmp, create_perfetto_trace=True)
-        jax.block_until_ready(exe(*args))
-        jax.profiler.stop_trace()
-        path = glob.glob(os.path.join(tmp, "**", "perfetto_trace.json.gz"), recursive=True)[0]
-        events = json.load(gzip.open(path))["traceEvents"]
+    events = _trace_events(exe, args)
     # exclusive time of every kernel: its duration minus that of kernels nested inside it
     by_thread = collections.defaultdict(list)
     for e in events:
