@@ -372,18 +372,24 @@ def square_to_spherical_triangle(u: Array, a: Array, b: Array, c: Array) -> Arra
     return _arr(_select(use_arvo, _unit(w), fallback))
 
 
-def square_to_spherical_triangle_pdf(v: Array, a: Array, b: Array, c: Array) -> Array:
+def square_to_spherical_triangle_pdf(v: Array, a: Array, b: Array, c: Array, *,
+                                     assume_inside: bool = False) -> Array:
     """Solid-angle density of :func:`square_to_spherical_triangle` at direction ``v``.
 
     ``1/Ω`` inside the spherical triangle when ``Ω`` is above the dtype's threshold; below
     it, the density of the area-sampling fallback, ``2 (n·a)² / |n·v|³`` with ``n = (b − a) ×
     (c − a)`` (``= dist² / (area |cos θ_light|)``); 0 outside the triangle and when Ω = 0.
-    Args: ``v`` unit (3,); ``a, b, c`` (3,) relative to the shading point.
+    ``assume_inside`` (static) skips the inside test for a caller that knows ``v`` passes
+    through the triangle (a sample of this warp, or a ray that hit it): in float32 far from
+    the origin the test can say "no" near the edges, and a light pdf of 0 there zeroes an
+    MIS weight. Args: ``v`` unit (3,); ``a, b, c`` (3,) relative to the shading point.
     """
     a, b, c = _rescale(a, b, c)
     v = _vec(v)
     omega = _omega(a, b, c)
-    inside = _inside(v, a, b, c, _edge_crosses(a, b, c)) & (omega > 0)
+    inside = omega > 0
+    if not assume_inside:
+        inside = inside & _inside(v, a, b, c, _edge_crosses(a, b, c))
     use_arvo = omega >= _min_solid_angle(v[0].dtype)
     safe = jnp.where(omega > 0, omega, jnp.ones_like(omega))
     pdf = jnp.where(use_arvo, 1 / safe, _area_pdf(v, a, b, c))
