@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxrt.bvh import any_hit_batch, build_bvh, closest_hit_batch
+from jaxrt.bvh import build_bvh
 from jaxrt.intersect import any_hit, closest_hit, triangle_set
 
 try:
@@ -75,14 +75,11 @@ def _geometry(name, accel):
     return _CACHE[key]
 
 
-def _query_fn(accel, query):
-    if accel == "bvh":
-        # The persistent-lane batch path: the fastest BVH traversal measured (README).
-        if query == "closest":
-            return lambda g, o, d, t: closest_hit_batch(g, o, d, t, lanes=1024, refill_every=4).t
-        return lambda g, o, d, t: any_hit_batch(g, o, d, t, lanes=1024, refill_every=4)
-    f = closest_hit if query == "closest" else any_hit
-    return lambda g, o, d, t: jax.vmap(f, (None, 0, 0, 0))(g, o, d, t)
+def _query_fn(query):
+    """The per-ray query vmapped over the batch, as the renderer calls it (either accel).
+
+    Closest hit returns the whole Hit (t, prim, barycentrics, normal), as Embree does."""
+    return jax.vmap(closest_hit if query == "closest" else any_hit, (None, 0, 0, 0))
 
 
 def _embree_rate(tri, o, d, query):
@@ -114,7 +111,7 @@ def test_intersect_throughput(benchmark, name, accel, kind, query):
     o, d = _rays(kind)
     t_max = jnp.full((o.shape[0],), jnp.inf, jnp.float32)
     t0 = time.perf_counter()
-    fn = jax.jit(_query_fn(accel, query)).lower(geo, o, d, t_max).compile()
+    fn = jax.jit(_query_fn(query)).lower(geo, o, d, t_max).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(fn(geo, o, d, t_max))  # warm-up
     benchmark.pedantic(lambda: jax.block_until_ready(fn(geo, o, d, t_max)), rounds=3,

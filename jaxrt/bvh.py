@@ -10,18 +10,19 @@ with skip links, so a ray walks it with a single integer cursor and no stack:
             else: node ← node + 1 (the left child); continue
         node ← skip(node)
 
-Two entry points share that step:
+:meth:`BVH.closest_hit` / :meth:`BVH.any_hit` traverse ONE ray as a ``while_loop`` and are
+meant to be called inside ``jax.vmap`` (the polymorphic ``jaxrt.intersect.closest_hit`` and
+``any_hit`` dispatch to them); under ``vmap`` each loop step advances every lane by up to
+``BOX_STEPS`` box visits and one leaf test, and the batch runs until its slowest ray is done.
 
-- :meth:`BVH.closest_hit` / :meth:`BVH.any_hit` for ONE ray, written as a ``while_loop``
-  and meant to be called inside ``jax.vmap`` (the polymorphic ``jaxrt.intersect.closest_hit``
-  and ``any_hit`` dispatch to them). Under ``vmap`` every lane waits for the slowest ray.
-- :func:`closest_hit_batch` / :func:`any_hit_batch` for a whole batch of rays with
-  *persistent lanes*: ``lanes`` rays are traversed together, and every ``refill_every``
-  steps a lane that has finished writes its result and takes the next ray, so the batch
-  no longer waits for its slowest ray. See benchmarks/README.md for the measurements.
+How it is made fast under XLA:CPU (measured, benchmarks/README.md): every array is 1-D
+(one gather per coordinate), every loop body has one consumer per costly value (XLA fuses a
+value into each consumer's kernel and recomputes it; ``optimization_barrier`` does not stop
+it), so the cursor is one integer and the leaf loop is software-pipelined, and the box visits
+are a ``fori_loop`` rather than unrolled. A persistent-lane variant (finished lanes take new
+rays) was measured slower than the plain vmapped loop once those fixes were in, and removed.
 
-Reference: Smits 1998, "Efficiency issues for ray tracing" (skip links); Aila & Laine 2009,
-"Understanding the efficiency of ray traversal on GPUs" (persistent threads).
+Reference: Smits 1998, "Efficiency issues for ray tracing" (skip links).
 """
 
 from __future__ import annotations
@@ -59,8 +60,9 @@ class BVH:
     skip: (N,) int32 node visited after a node's subtree (``N``: done).
     leaf_start, leaf_count: (N,) int32 a leaf's triangle range; ``leaf_count == 0`` marks an
         interior node, whose left child is the next node.
-    tri: (F + L, 9) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
-        reordered by leaf, padded with L degenerate triangles.
+    tri: 9 × (F + L,) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
+        reordered by leaf, padded with L degenerate triangles (one array per coordinate: a
+        gather from it is a contiguous vector per lane batch).
     prim: (F + L,) int32 original triangle index of each reordered triangle (−1 padding).
     ng: (F + L, 3) unit geometric normals of the reordered triangles (as ``TriangleSet``).
     leaf_size: static ``L``, the block of triangles tested at once in a leaf.
@@ -115,11 +117,11 @@ def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
     return BVH(
         tuple(jnp.asarray(box[:, k], dtype) for k in range(6)),
         as_int(flat.skip), as_int(flat.leaf_start), as_int(flat.leaf_count),
-        tri.reshape(-1, 9), as_int(flat.prim), jnp.asarray(tset.ng, dtype), leaf_size,
+        tuple(tri.reshape(-1, 9).T), as_int(flat.prim), jnp.asarray(tset.ng, dtype), leaf_size,
     )
 
 
-def build_bvh(triangles, leaf_size: int = 4, n_bins: int = 16) -> BVH:
+def build_bvh(triangles, leaf_size: int = 2, n_bins: int = 16) -> BVH:
     """Build a binned-SAH BVH over ``triangles`` (F, 3, 3) on the host, return it on device.
 
     ``leaf_size`` triangles per leaf at most (tested as one block), ``n_bins`` SAH bins per
@@ -128,8 +130,8 @@ def build_bvh(triangles, leaf_size: int = 4, n_bins: int = 16) -> BVH:
     return bvh_from_flat(build_flat_bvh(triangles, leaf_size, n_bins), leaf_size)
 
 
-# Box visits per leaf-block test in one traversal step (measured: benchmarks/README.md).
-BOX_STEPS = 4
+# Box visits per leaf test in one traversal step (measured: benchmarks/README.md).
+BOX_STEPS = 16
 
 
 class _Ray(NamedTuple):
@@ -169,13 +171,15 @@ def _slab_entry(box, ray: _Ray, t_max: Array) -> Array:
 class _Cursor(NamedTuple):
     """Traversal state of one ray.
 
-    node: next node to visit (``N`` or more when done); leaf: an entered leaf whose
-    triangles are still to be tested, or −1; t, pos: closest hit so far (``pos`` indexes
-    the reordered triangles, −1 before any hit; ``t`` starts at ``t_max``).
+    node: ``0 ≤ node < N`` the next node to visit; ``N`` or more: done; negative: the leaf
+    ``−1 − node`` was entered and its triangles are still to be tested (traversal then goes
+    on at its skip link). One integer, so that a box visit has a single output and XLA
+    compiles it to one fused kernel (with a separate ``leaf`` field it fused the slab test
+    into both outputs' kernels). t, pos: closest hit so far (``pos`` indexes the reordered
+    triangles, −1 before any hit; ``t`` starts at ``t_max``).
     """
 
     node: Array
-    leaf: Array
     t: Array
     pos: Array
 
@@ -184,66 +188,81 @@ def _initial_cursor(t_max: Array, live) -> _Cursor:
     """Cursor at the root (or already done when not ``live``), no hit yet."""
     minus_one = jnp.full(t_max.shape, -1, jnp.int32)
     node = jnp.where(live, 0, jnp.iinfo(jnp.int32).max).astype(jnp.int32)
-    return _Cursor(node, minus_one, t_max, minus_one)
+    return _Cursor(jnp.broadcast_to(node, t_max.shape), t_max, minus_one)
 
 
 def _box_step(bvh: BVH, ray: _Ray, c: _Cursor) -> _Cursor:
     """Visit one node's box unless a leaf is pending: descend, skip, or mark the leaf."""
-    active = (c.leaf < 0) & (c.node < bvh.num_nodes)
-    node = jnp.minimum(c.node, bvh.num_nodes - 1)
+    active = (c.node >= 0) & (c.node < bvh.num_nodes)
+    node = jnp.clip(c.node, 0, bvh.num_nodes - 1)
     enter = active & _slab_entry(tuple(b[node] for b in bvh.box), ray, c.t)
     is_leaf = bvh.leaf_count[node] > 0
-    # Descend into an entered interior node, otherwise follow the skip link.
-    next_node = jnp.where(enter & ~is_leaf, node + 1, bvh.skip[node])
-    return c._replace(
-        node=jnp.where(active, next_node, c.node),
-        leaf=jnp.where(enter & is_leaf, node, c.leaf),
-    )
+    # Descend into an entered interior node, mark an entered leaf, else follow the skip link.
+    next_node = jnp.where(enter, jnp.where(is_leaf, -1 - node, node + 1), bvh.skip[node])
+    return c._replace(node=jnp.where(active, next_node, c.node))
 
 
 def _leaf_step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool) -> _Cursor:
-    """Test the pending leaf's triangles as one block of L and keep the closest hit."""
-    leaf = jnp.maximum(c.leaf, 0)
-    count = jnp.where(c.leaf >= 0, bvh.leaf_count[leaf], 0)
-    idx = bvh.leaf_start[leaf] + jnp.arange(bvh.leaf_size, dtype=jnp.int32)
-    # One row gather of 9 floats per triangle, then coordinate-major for the test.
-    v = bvh.tri[idx].T
-    tt = jax.vmap(intersect_triangle_t, (None, 0, 0, 0, None))(
-        ray.frame, (v[0], v[1], v[2]), (v[3], v[4], v[5]), (v[6], v[7], v[8]), c.t
-    )
-    # Without the barrier XLA fuses the block test into each consumer, recomputing it.
-    tt = lax.optimization_barrier(tt)
-    # Block entries past the leaf's count belong to the next leaf: mask them.
-    tt = jnp.where(jnp.arange(bvh.leaf_size) < count, tt, jnp.inf)
-    j = jnp.argmin(tt)
-    # As TriangleSet: strictly closer, but the first hit may sit exactly at t_max.
-    closer = (tt[j] < c.t) | ((c.pos < 0) & (tt[j] < jnp.inf))
-    node = jnp.where(closer, bvh.num_nodes, c.node) if stop_at_first else c.node
-    return _Cursor(node, jnp.full_like(c.leaf, -1), jnp.where(closer, tt[j], c.t),
-                   jnp.where(closer, idx[j], c.pos))
+    """Test the pending leaf's triangles one by one and keep the closest hit.
+
+    A ``fori_loop`` over the leaf's ``L`` slots, software-pipelined as
+    ``TriangleSet.closest_hit``: iteration i tests slot i and folds slot i−1's distance into
+    ``(t, pos)``, so the test's only consumer is the loop carry and XLA computes it once. (A
+    vmap over the block followed by ``argmin`` fed the test to several consumers, and XLA
+    fused a copy of it into each: the ``optimization_barrier`` meant to stop that is removed
+    before fusion.) Slots past the leaf's count belong to the next leaf and are masked.
+    """
+    pending = c.node < 0
+    leaf = jnp.where(pending, -1 - c.node, 0)
+    count = jnp.where(pending, bvh.leaf_count[leaf], 0)
+    start = bvh.leaf_start[leaf]
+    inf = jnp.asarray(jnp.inf, c.t.dtype)
+
+    def fold(t, pos, ti, k):
+        # As TriangleSet: strictly closer, but the first hit may sit exactly at t_max.
+        closer = (ti < t) | ((pos < 0) & (ti < inf))
+        return jnp.where(closer, ti, t), jnp.where(closer, k, pos)
+
+    def body(i, carry):
+        t, pos, ti_prev = carry
+        k = start + i
+        # One gather per coordinate from the SoA table: each a contiguous (lanes,) vector.
+        v = [a[k] for a in bvh.tri]
+        ti = jnp.where(i < count,
+                       intersect_triangle_t(ray.frame, v[0:3], v[3:6], v[6:9], c.t), inf)
+        t, pos = fold(t, pos, ti_prev, k - 1)
+        return t, pos, ti
+
+    t, pos, ti = lax.fori_loop(0, bvh.leaf_size, body, (c.t, c.pos, inf))
+    t, pos = fold(t, pos, ti, start + bvh.leaf_size - 1)
+    node = jnp.where(pending, bvh.skip[leaf], c.node)
+    if stop_at_first:
+        node = jnp.where(pos != c.pos, bvh.num_nodes, node)
+    return _Cursor(node, t, pos)
 
 
 def _step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool, box_steps: int) -> _Cursor:
     """Up to ``box_steps`` box visits (until a leaf is entered), then that leaf's test.
 
-    A block of watertight triangle tests costs ~20 box tests, so a lane walks several
-    boxes per leaf block instead of paying for a (masked) block at every node.
+    A leaf's triangle tests cost several box tests, so a lane walks several boxes per leaf
+    test instead of paying for a (masked) leaf at every node. The box visits are a
+    ``fori_loop``, not unrolled: unrolled, XLA fused each visit's gathers into every later
+    consumer and recomputed them (4 unrolled visits plus a leaf cost 6× the sum of their parts).
     """
-    for _ in range(box_steps):  # a few static box visits, unrolled
-        c = _box_step(bvh, ray, c)
+    c = lax.fori_loop(0, box_steps, lambda _, c: _box_step(bvh, ray, c), c)
     return _leaf_step(bvh, ray, c, stop_at_first)
 
 
 def _running(bvh: BVH, c: _Cursor) -> Array:
-    """Whether a cursor still has nodes or a pending leaf to visit."""
-    return (c.node < bvh.num_nodes) | (c.leaf >= 0)
+    """Whether a cursor still has nodes or a pending leaf (negative ``node``) to visit."""
+    return c.node < bvh.num_nodes
 
 
 def _to_hit(bvh: BVH, frame: RayFrame, t, pos) -> Hit:
     """Turn a traversal result into a :class:`Hit` (prim −1, t = inf, zeros on a miss)."""
     found = pos >= 0
     p = jnp.maximum(pos, 0)
-    v = bvh.tri[p]
+    v = [a[p] for a in bvh.tri]
     # Barycentrics of the winner only, once per ray (as TriangleSet does).
     b1, b2 = barycentrics_frame(frame, v[0:3], v[3:6], v[6:9])
     zero = jnp.zeros_like(t)
@@ -269,8 +288,7 @@ def closest_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> 
     Stackless traversal along skip links; boxes are culled against the current closest
     ``t``, so the search shrinks as hits are found. ``origin``, ``direction``: (3,), world
     frame, ``direction`` need not be unit (``t`` is in units of ``‖direction‖``). Returns a
-    :class:`Hit` with ``prim = −1`` and ``t = inf`` on a miss. Vmap over rays; for large
-    batches :func:`closest_hit_batch` is faster.
+    :class:`Hit` with ``prim = −1`` and ``t = inf`` on a miss. Vmap over rays.
     """
     c = _traverse_one(bvh, origin, direction, t_max, False)
     return _to_hit(bvh, ray_frame(origin, direction), c.t, c.pos)
@@ -282,80 +300,3 @@ def any_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> Arra
     Shapes as :func:`closest_hit_ray`; returns a bool scalar.
     """
     return _traverse_one(bvh, origin, direction, t_max, True).pos >= 0
-
-
-def _persistent(bvh, origins, directions, t_max, lanes, refill_every, stop_at_first):
-    """Traverse R rays on ``lanes`` persistent lanes; returns per-ray ``(t, pos)``."""
-    n_rays = origins.shape[0]
-    lanes = max(1, min(lanes, n_rays))
-    dtype = origins.dtype
-    t_max = jnp.broadcast_to(jnp.asarray(t_max, dtype), (n_rays,))
-    # Structure of arrays: one contiguous vector per coordinate.
-    coords = tuple(origins[:, k] for k in range(3)) + tuple(directions[:, k] for k in range(3))
-    step = jax.vmap(lambda ray, c: _step(bvh, ray, c, stop_at_first, BOX_STEPS))
-
-    def load(ray_id):
-        # Gather each lane's ray; lanes past the end start (and stay) done.
-        r = jnp.minimum(ray_id, n_rays - 1)
-        ray = jax.vmap(_make_ray)(*(c[r] for c in coords))
-        return ray, _initial_cursor(t_max[r], ray_id < n_rays)
-
-    def outer(carry):
-        ray_id, next_id, ray, cur, out = carry
-        cur = lax.fori_loop(0, refill_every, lambda _, c: step(ray, c), cur)
-        finished = ~_running(bvh, cur)
-        # Finished lanes write their result (the others write to a dropped index) ...
-        slot = jnp.where(finished & (ray_id < n_rays), ray_id, n_rays)
-        res = (cur.t, cur.pos)
-        out = tuple(a.at[slot].set(v, mode="drop") for a, v in zip(out, res, strict=True))
-        # ... and take the next rays, in lane order.
-        new_id = next_id + jnp.cumsum(finished, dtype=jnp.int32) - 1
-        ray_id = jnp.where(finished, jnp.minimum(new_id, n_rays), ray_id)
-        fresh_ray, fresh = load(ray_id)
-        keep = lambda a, b: jnp.where(finished, b, a)
-        ray = jax.tree_util.tree_map(keep, ray, fresh_ray)
-        cur = jax.tree_util.tree_map(keep, cur, fresh)
-        next_id = next_id + jnp.sum(finished, dtype=jnp.int32)
-        return ray_id, next_id, ray, cur, out
-
-    ray_id = jnp.arange(lanes, dtype=jnp.int32)
-    ray, cur = load(ray_id)
-    zeros = jnp.zeros((n_rays,), dtype)
-    out = (zeros, jnp.full((n_rays,), -1, jnp.int32))
-    carry = (ray_id, jnp.int32(lanes), ray, cur, out)
-    carry = lax.while_loop(lambda c: jnp.any(c[0] < n_rays), outer, carry)
-    return carry[-1]
-
-
-def closest_hit_batch(
-    bvh: BVH,
-    origins: Array,
-    directions: Array,
-    t_max: Array,
-    lanes: int = 256,
-    refill_every: int = 8,
-) -> Hit:
-    """Closest hits of a batch of rays with persistent lanes (fast path for large batches).
-
-    Same result per ray as ``vmap(closest_hit_ray)``, but ``lanes`` rays are in flight at
-    once and a lane that finishes takes the next ray every ``refill_every`` steps, so the
-    batch does not wait for its slowest ray. ``origins``, ``directions``: (R, 3);
-    ``t_max``: () or (R,). Returns a batched :class:`Hit` with leading axis R.
-    """
-    t, pos = _persistent(bvh, origins, directions, t_max, lanes, refill_every, False)
-    return jax.vmap(lambda o, d, t, p: _to_hit(bvh, ray_frame(o, d), t, p))(
-        origins, directions, t, pos
-    )
-
-
-def any_hit_batch(
-    bvh: BVH,
-    origins: Array,
-    directions: Array,
-    t_max: Array,
-    lanes: int = 256,
-    refill_every: int = 8,
-) -> Array:
-    """Occlusion of a batch of rays with persistent lanes: (R,) bool, hit in ``(0, t_max]``."""
-    _, pos = _persistent(bvh, origins, directions, t_max, lanes, refill_every, True)
-    return pos >= 0

@@ -1,6 +1,5 @@
 """BVH: build validity, agreement with brute force (closest and any hit), bad input, auto."""
 
-from functools import partial
 
 import jax
 import jax.numpy as jnp
@@ -9,7 +8,7 @@ import pytest
 import trimesh
 
 from jaxrt.accel import AUTO_BVH_THRESHOLD, build_geometry
-from jaxrt.bvh import BVH, any_hit_batch, build_bvh, closest_hit_batch
+from jaxrt.bvh import BVH, build_bvh
 from jaxrt.bvh_build import build_flat_bvh
 from jaxrt.intersect import TriangleSet, any_hit, closest_hit, intersect_triangle, triangle_set
 
@@ -79,22 +78,18 @@ def rays(tri, n=256, seed=1):
     return o.astype(tri.dtype), d.astype(tri.dtype), t_max.astype(tri.dtype)
 
 
-# The persistent-lane batch path is checked on these (compiling it for every mesh is slow).
-BATCH_MESHES = ("soup", "icosphere", "cornell")
+# Meshes checked in the quick loop; the others run with the slow suite (CI).
+QUICK_MESHES = ("soup", "icosphere", "cornell")
 
 
-@partial(jax.jit, static_argnames="batch")
-def _queries(bvh, tset, o, d, t_max, batch=True):
+@jax.jit
+def _queries(bvh, tset, o, d, t_max):
     """Every query on one mesh in one compiled function (so each mesh compiles once)."""
     per_ray = lambda f, g: jax.vmap(f, (None, 0, 0, 0))(g, o, d, t_max)
-    out = dict(
+    return dict(
         brute=per_ray(closest_hit, tset), brute_any=per_ray(any_hit, tset),
         bvh=per_ray(closest_hit, bvh), bvh_any=per_ray(any_hit, bvh),
     )
-    if batch:
-        out["batch"] = closest_hit_batch(bvh, o, d, t_max, lanes=64, refill_every=2)
-        out["batch_any"] = any_hit_batch(bvh, o, d, t_max, lanes=64, refill_every=2)
-    return out
 
 
 def _check_closest(tri, o, d, t_max, ref, got):
@@ -111,7 +106,8 @@ def _check_closest(tri, o, d, t_max, ref, got):
     differ = np.flatnonzero(got.prim != ref.prim)
     for i in differ:  # ties only: the BVH's triangle is hit at the brute-force t
         v = tri[got.prim[i]]
-        t_other, _, _ = intersect_triangle(o[i], d[i], v[0], v[1], v[2], t_max[i])
+        # unbounded: at a boundary t_max the standalone test may round t one ulp the other way
+        t_other, _, _ = intersect_triangle(o[i], d[i], v[0], v[1], v[2], np.inf)
         np.testing.assert_allclose(t_other, ref.t[i], rtol=8 * eps, atol=atol)
     same = got.prim == ref.prim
     # Barycentrics and normals of the same triangle: same formulas, a few ulp apart.
@@ -123,7 +119,7 @@ def _check_closest(tri, o, d, t_max, ref, got):
 
 # Degenerate meshes compile one traversal each: run them with the slow suite (CI).
 AGREEMENT_CASES = [
-    name if name in BATCH_MESHES else pytest.param(name, marks=pytest.mark.slow)
+    name if name in QUICK_MESHES else pytest.param(name, marks=pytest.mark.slow)
     for name in MESHES
 ]
 
@@ -133,19 +129,16 @@ def test_bvh_matches_brute_force(name):
     tri = MESHES[name]
     o, d, t_max = rays(tri)
     bvh, tset = build_bvh(tri), triangle_set(tri)
-    batch = name in BATCH_MESHES
-    out = _queries(bvh, tset, o, d, t_max, batch=batch)
+    out = _queries(bvh, tset, o, d, t_max)
     # The ray set must exercise both outcomes (a third of the rays aim at triangles).
     assert int(jnp.sum(out["brute"].prim >= 0)) >= 10
     assert int(jnp.sum(out["brute"].prim < 0)) >= 10
     ties = _check_closest(tri, o, d, t_max, out["brute"], out["bvh"])
-    # Only coincident triangles can tie: at most the "identical" mesh has them.
-    assert name == "identical" or ties == 0
+    # Only overlapping coplanar triangles can tie: the "identical" mesh, and the Cornell box,
+    # whose blocks' bottom faces lie on the floor (which one wins depends on visiting order).
+    assert name in ("identical", "cornell") or ties == 0
     # Any-hit is an exact boolean: same test, same t_max.
     np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
-    if batch:
-        _check_closest(tri, o, d, t_max, out["brute"], out["batch"])
-        np.testing.assert_array_equal(out["batch_any"], out["brute_any"])
 
 
 @pytest.mark.parametrize("name", list(MESHES))
@@ -218,11 +211,12 @@ def test_dtypes_and_x64(x64):
     tri = MESHES["cornell"].astype(dtype)
     o, d, t_max = rays(tri)  # same shapes as the cornell case: reuses its compilation in f32
     bvh, tset = build_bvh(tri), triangle_set(tri)
-    assert bvh.tri.dtype == dtype and bvh.box[0].dtype == dtype
+    assert bvh.tri[0].dtype == dtype and bvh.box[0].dtype == dtype
     out = _queries(bvh, tset, o, d, t_max)
     assert out["bvh"].t.dtype == dtype and out["bvh"].prim.dtype == jnp.int32
-    assert out["bvh"].ng.dtype == dtype and out["batch"].b1.dtype == dtype
-    assert _check_closest(tri, o, d, t_max, out["brute"], out["bvh"]) == 0
+    assert out["bvh"].ng.dtype == dtype and out["bvh"].b1.dtype == dtype
+    # every prim that differs is checked to be a tie (the floor under a block's bottom face)
+    _check_closest(tri, o, d, t_max, out["brute"], out["bvh"])
     np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
 
 
@@ -254,6 +248,4 @@ def test_boundary_t_max_agrees_with_brute_force():
     assert np.asarray(at["brute"].prim >= 0)[hit].mean() > 0.8
     # ... and the BVH keeps the same ones (it once culled boxes at exactly t_max).
     _check_closest(tri, o, d, t_hit, at["brute"], at["bvh"])
-    _check_closest(tri, o, d, t_hit, at["brute"], at["batch"])
     np.testing.assert_array_equal(at["bvh_any"], at["brute_any"])
-    np.testing.assert_array_equal(at["batch_any"], at["brute_any"])
