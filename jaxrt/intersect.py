@@ -224,9 +224,6 @@ def _intersect_raw(frame: RayFrame, v0: Array, v1: Array, v2: Array, t_max: Arra
     t_scaled = e0 * z0 + e1 * z1 + e2 * z2
     in_range = jnp.where(det < 0, (t_scaled < 0) & (t_scaled >= t_max * det),
                          (t_scaled > 0) & (t_scaled <= t_max * det))
-    safe_det = jnp.where(det != 0, det, jnp.ones_like(det))
-    inv_det = 1 / safe_det
-    t = t_scaled * inv_det
     # conservative rounding-error bound δt on t (pbrt-v4 §6.8.4): reject t ≤ δt, not t ≤ ε
     max_zt = _max3(jnp.abs(z0), jnp.abs(z1), jnp.abs(z2))
     max_xt = _max3(jnp.abs(x0), jnp.abs(x1), jnp.abs(x2))
@@ -238,10 +235,12 @@ def _intersect_raw(frame: RayFrame, v0: Array, v1: Array, v2: Array, t_max: Arra
     delta_y = gamma(5, dtype) * (max_yt + max_z_raw)
     delta_e = 2 * (gamma(2, dtype) * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt)
     max_e = _max3(jnp.abs(e0), jnp.abs(e1), jnp.abs(e2))
-    delta_t = 3 * (gamma(3, dtype) * max_e * max_zt + delta_e * max_zt
-                   + delta_z * max_e) * jnp.abs(inv_det)
-    hit = frame.valid & inside & (det != 0) & in_range & (t > delta_t)
-    return _Raw(hit, t, e1 * inv_det, e2 * inv_det)
+    # pbrt's δt = bound · |1/det|; in_range gives t_scaled the sign of det, so t > δt is
+    # |t_scaled| > bound: no division in the hit decision (any-hit loops need none at all)
+    bound = 3 * (gamma(3, dtype) * max_e * max_zt + delta_e * max_zt + delta_z * max_e)
+    hit = frame.valid & inside & (det != 0) & in_range & (jnp.abs(t_scaled) > bound)
+    inv_det = 1 / jnp.where(det != 0, det, jnp.ones_like(det))
+    return _Raw(hit, t_scaled * inv_det, e1 * inv_det, e2 * inv_det)
 
 
 def intersect_triangle_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array,
@@ -270,6 +269,16 @@ def intersect_triangle_t(frame: RayFrame, v0: Array, v1: Array, v2: Array,
     """
     r = _intersect_raw(frame, v0, v1, v2, t_max)
     return jnp.where(r.hit, r.t, jnp.asarray(jnp.inf, r.t.dtype))
+
+
+def intersect_triangle_hit(frame: RayFrame, v0: Array, v1: Array, v2: Array,
+                           t_max: Array) -> Array:
+    """Whether the ray hits the triangle with ``δt < t ≤ t_max``: the any-hit form.
+
+    The same decision as ``intersect_triangle_t(...) < inf``, computed without ``t`` (no
+    division), so an any-hit loop body is the inside and range tests only.
+    """
+    return _intersect_raw(frame, v0, v1, v2, t_max).hit
 
 
 def barycentrics_frame(frame: RayFrame, v0: Array, v1: Array, v2: Array) -> tuple[Array, Array]:
@@ -372,8 +381,7 @@ class TriangleSet(NamedTuple):
 
         def body(i, found):
             v = verts[i]
-            ti = intersect_triangle_t(frame, v[0], v[1], v[2], t_max)
-            return found | (self.valid[i] & (ti < jnp.inf))
+            return found | (self.valid[i] & intersect_triangle_hit(frame, v[0], v[1], v[2], t_max))
 
         return lax.fori_loop(0, self.num_triangles, body, jnp.zeros((), bool), unroll=_UNROLL)
 
