@@ -79,7 +79,7 @@ def machine_description() -> dict:
 
 
 def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "independent",
-                seed: int = 0, pass_spp: int = 1, tile_size: int = 256, batch_size: int = 4,
+                seed: int = 0, pass_spp: int = 1, tile_size: int = 256, batch_size: int = 64,
                 devices: int = 1, **params) -> tuple[list[dict], float]:
     """Render ``scene`` progressively and snapshot the image at each spp in ``levels``.
 

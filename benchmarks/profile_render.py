@@ -4,7 +4,8 @@
     python benchmarks/profile_render.py --trace    # also the per-kernel XLA:CPU trace
 
 Every stage is measured *inside the render*: ``jaxrt.render._render_tiles`` (256×256
-``cornell_box``, 1 spp, the default 256-pixel tiles × 4 per ``lax.map`` step, i.e. 1 024 lanes)
+``cornell_box``, 1 spp, the default 256-pixel tiles × 64 per ``lax.map`` step, i.e. 16 384
+lanes)
 is compiled once per level with its per-sample function replaced by a truncated MIS estimator
 that stops after one more stage (each level's output depends on everything it computed, so XLA
 cannot drop it). The cost of a stage is the difference between consecutive levels, taken per
@@ -34,6 +35,7 @@ import argparse
 import collections
 import glob
 import gzip
+import inspect
 import json
 import os
 import re
@@ -62,6 +64,7 @@ from jaxrt.scenes import cornell_box
 from jaxrt.vecmath import to_local, to_world
 
 SIZE = 256
+BATCH_SIZE = inspect.signature(rd.render).parameters["batch_size"].default  # as render
 LEVELS = ("nothing", "sample stream", "camera ray", "closest hit (camera ray)", "light sample",
           "shadow ray (any hit)", "BSDF eval + pdf (light dir)", "BSDF sample",
           "BSDF ray: closest hit + emitted", "pdf_li (BSDF ray)", "full render (+ MIS weights)")
@@ -125,7 +128,7 @@ def compile_level(scene, est, level: int):
     rd.camera_sample = truncated_sample(level)
     try:
         static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
-                      batch_size=4, num_tiles=SIZE * SIZE // 256)
+                      batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
         args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0))
         t0 = time.perf_counter()
         exe = rd._render_tiles.lower(*args, **static).compile()

@@ -269,7 +269,7 @@ def subdivided_box(levels: int, size: int, accel: str):
 
 @pytest.mark.parametrize("levels", (0, 1, 2, 3) if FULL else (2,))
 def test_bench_brute_vs_bvh(benchmark, levels):
-    size = 32  # brute force over 2 k triangles costs ~ms per ray batch: keep the image small
+    size = 128  # 16 384 pixels: one full 16 384-lane step, as the default render batch
     a, b = subdivided_box(levels, size, "brute"), subdivided_box(levels, size, "bvh")
     info, ia, ib = _paired(benchmark, a, b, spp=1)
     info["triangles"] = a.num_triangles
