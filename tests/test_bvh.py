@@ -141,6 +141,19 @@ def test_bvh_matches_brute_force(name):
     np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
 
 
+@pytest.mark.parametrize("leaf_size", [8, pytest.param(1, marks=pytest.mark.slow),
+                                       pytest.param(3, marks=pytest.mark.slow)])
+def test_bvh_leaf_sizes_match_brute_force(leaf_size):
+    """Other leaf sizes than the default: leaves of 8 hold 1–8 triangles (the loop runs past a
+    short leaf's count, masked), leaves of 1 run the pipelined loop once. Teeth: skipping a
+    leaf's last slot fails all three sizes, folding with the wrong index fails 3 and 8."""
+    tri = MESHES["soup"]
+    o, d, t_max = rays(tri)
+    out = _queries(build_bvh(tri, leaf_size=leaf_size), triangle_set(tri), o, d, t_max)
+    assert _check_closest(tri, o, d, t_max, out["brute"], out["bvh"]) == 0
+    np.testing.assert_array_equal(out["bvh_any"], out["brute_any"])
+
+
 @pytest.mark.parametrize("name", list(MESHES))
 def test_build_is_valid(name):
     tri = MESHES[name]
