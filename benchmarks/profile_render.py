@@ -255,7 +255,8 @@ def main() -> None:
     scene = cornell_box(SIZE, SIZE)
     scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
     n = SIZE * SIZE
-    print(f"jax {jax.__version__}, {SIZE}x{SIZE} cornell_box, mis, 1 spp, 1024 lanes per step; "
+    print(f"jax {jax.__version__}, {SIZE}x{SIZE} cornell_box, mis, 1 spp, "
+          f"{256 * BATCH_SIZE} lanes per step; "
           f"load average at start {os.getloadavg()}")
     programs = []
     for level, name in enumerate(LEVELS):
