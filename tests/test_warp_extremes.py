@@ -71,10 +71,10 @@ def test_sharp_lobes_radial_ks(sample, pdf, param):
 
 def test_radial_ks_has_teeth():
     # GGX samples at α = 1e-3 against the pdf of α = 1.2e-3, Phong 1e4 against 1.2e4
-    a, a_bad = jnp.float32(1e-3), jnp.float64(1.2e-3)
+    a, a_bad = jnp.float32(1e-3), jnp.float32(1.2e-3)
     _, p = _ks(lambda u: W.square_to_ggx(u, a), lambda v: W.square_to_ggx_pdf(v, a_bad))
     assert p < 1e-6, p
-    n, n_bad = jnp.float32(1e4), jnp.float64(1.2e4)
+    n, n_bad = jnp.float32(1e4), jnp.float32(1.2e4)
     _, p = _ks(lambda u: W.square_to_phong_lobe(u, n),
                lambda v: W.square_to_phong_lobe_pdf(v, n_bad))
     assert p < 1e-6, p
