@@ -114,7 +114,7 @@ def test_intersect_throughput(benchmark, name, accel, kind, query):
     fn = jax.jit(_query_fn(query)).lower(geo, o, d, t_max).compile()
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(fn(geo, o, d, t_max))  # warm-up
-    benchmark.pedantic(lambda: jax.block_until_ready(fn(geo, o, d, t_max)), rounds=3,
+    benchmark.pedantic(lambda: jax.block_until_ready(fn(geo, o, d, t_max)), rounds=5,
                        iterations=1)
     rate = o.shape[0] / benchmark.stats.stats.min / 1e6
     info = dict(triangles=len(tri), mrays_per_s=rate, compile_s=compile_s, rays=o.shape[0])

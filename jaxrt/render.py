@@ -40,6 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxrt.bvh import BVH
 from jaxrt.estimators import Estimator, camera_sample, make_estimator
 from jaxrt.sampler import SAMPLER_KINDS
 from jaxrt.scene import Scene, with_triangle_sampling
@@ -115,11 +116,27 @@ def _render_tiles(scene: Scene, seed, start, first_tile, *, est: Estimator, samp
     one_pixel = partial(_pixel_sums, scene, est, sampler, spp_total, seed, start=start,
                         count=count)
 
-    def tile(pix):
+    def block(pix):
         return jax.vmap(one_pixel)(jnp.where(pix < num_pixels, pix, 0))
 
-    sums = lax.map(tile, pixels, batch_size=batch_size)
-    return jax.tree.map(lambda a: a.reshape((num_tiles * tile_size,) + a.shape[2:]), sums)
+    if not isinstance(scene.geometry, BVH):
+        # brute force: lax.map's vmap of tiles over a vmap of pixels (a flat vmap of the same
+        # lanes measured 0.93×, paired, on the Cornell box)
+        sums = lax.map(block, pixels, batch_size=batch_size)
+        return jax.tree.map(lambda a: a.reshape((num_tiles * tile_size,) + a.shape[2:]), sums)
+    # BVH: batch_size tiles per step as ONE flat vmap, so that the BVH's batching rule sees
+    # all batch_size · tile_size rays and can compact the slow ones (a nested vmap shows it one
+    # tile at a time: 1.74× slower on a 1 922-triangle box at 128², same image bit for bit)
+    flat = pixels.reshape(-1)
+    steps, rest = divmod(num_tiles, batch_size)
+    width = batch_size * tile_size
+    parts = []
+    if steps:
+        out = lax.map(block, flat[: steps * width].reshape(steps, width))
+        parts.append(jax.tree.map(lambda a: a.reshape((steps * width,) + a.shape[2:]), out))
+    if rest:
+        parts.append(block(flat[steps * width:]))
+    return jax.tree.map(lambda *a: jnp.concatenate(a), *parts)
 
 
 class _Pass:

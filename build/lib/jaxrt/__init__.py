@@ -1,0 +1,31 @@
+"""jaxrt: batched Monte Carlo estimators for physically based rendering in JAX.
+
+The package mirrors the rendering pipeline (samples → warps → rays → intersections →
+shading → estimators → render → files); see README.md for a tour.
+"""
+
+__version__ = "0.1.0"
+
+# The top-level names load lazily so that ``import jaxrt.warp`` stays light and no import
+# cycle can form between the pipeline's modules and this package.
+_LAZY = {
+    "Scene": ("jaxrt.scene", "Scene"),
+    "build_scene": ("jaxrt.scene", "build_scene"),
+    "mesh": ("jaxrt.scene", "mesh"),
+    "render": ("jaxrt.render", "render"),
+    "RenderResult": ("jaxrt.render", "RenderResult"),
+    "load_scene": ("jaxrt.scene_file", "load_scene"),
+    "chi2_test": ("jaxrt.testing", "chi2_test"),
+}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        return getattr(importlib.import_module(module), attr)
+    raise AttributeError(f"module 'jaxrt' has no attribute {name!r}")
+
+
+__all__ = list(_LAZY)

@@ -1,0 +1,304 @@
+"""Bounding volume hierarchy: a pytree of flat arrays and its stackless traversal in JAX.
+
+The tree is built on the host (:mod:`jaxrt.bvh_build`, binned SAH) and laid out depth-first
+with skip links, so a ray walks it with a single integer cursor and no stack:
+
+    node ← 0
+    while node ≠ N:
+        if the ray hits box(node) before its current closest t:
+            if leaf(node): test its ≤ L triangles one by one, shrink t
+            else: node ← node + 1 (the left child); continue
+        node ← skip(node)
+
+:meth:`BVH.closest_hit` / :meth:`BVH.any_hit` traverse ONE ray as a ``while_loop`` and are
+meant to be called inside ``jax.vmap`` (the polymorphic ``jaxrt.intersect.closest_hit`` and
+``any_hit`` dispatch to them); under ``vmap`` each loop step advances every lane by up to
+``BOX_STEPS`` box visits and one leaf test, and the batch runs until its slowest ray is done.
+
+How it is made fast under XLA:CPU (measured, benchmarks/README.md): every array is 1-D
+(one gather per coordinate), every loop body has one consumer per costly value (XLA fuses a
+value into each consumer's kernel and recomputes it; ``optimization_barrier`` does not stop
+it), so the cursor is one integer and the leaf loop is software-pipelined, and the box visits
+are a ``fori_loop`` rather than unrolled. A persistent-lane variant (finished lanes take new
+rays) was measured slower than the plain vmapped loop once those fixes were in, and removed.
+
+Reference: Smits 1998, "Efficiency issues for ray tracing" (skip links).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array, lax
+
+from jaxrt.bvh_build import FlatBVH, build_flat_bvh
+from jaxrt.intersect import (
+    Hit,
+    RayFrame,
+    barycentrics_frame,
+    gamma,
+    intersect_triangle_t,
+    ray_frame,
+    triangle_set,
+)
+
+
+@jax.tree_util.register_pytree_node_class
+@dataclass(frozen=True)
+class BVH:
+    """A flat, stackless BVH over ``F`` triangles with ``N`` nodes (a JAX pytree).
+
+    Stored as structure-of-arrays, every field a 1-D array, because under ``vmap`` XLA:CPU
+    is far slower on ``(rays, 3)`` arrays sliced along their minor axis than on one
+    contiguous vector per coordinate.
+
+    box: 6 × (N,) node bounds ``(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)``.
+    skip: (N,) int32 node visited after a node's subtree (``N``: done).
+    leaf_start, leaf_count: (N,) int32 a leaf's triangle range; ``leaf_count == 0`` marks an
+        interior node, whose left child is the next node.
+    tri: 9 × (F + L,) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
+        reordered by leaf, padded with L degenerate triangles (one array per coordinate: a
+        gather from it is a contiguous vector per lane batch).
+    prim: (F + L,) int32 original triangle index of each reordered triangle (−1 padding).
+    ng: (F + L, 3) unit geometric normals of the reordered triangles (as ``TriangleSet``).
+    leaf_size: static ``L``, the most triangles in a leaf (a leaf loop runs L iterations).
+    """
+
+    box: tuple
+    skip: Array
+    leaf_start: Array
+    leaf_count: Array
+    tri: tuple
+    prim: Array
+    ng: Array
+    leaf_size: int
+
+    def tree_flatten(self):
+        children = (self.box, self.skip, self.leaf_start, self.leaf_count, self.tri, self.prim,
+                    self.ng)
+        return children, self.leaf_size
+
+    @classmethod
+    def tree_unflatten(cls, leaf_size, children):
+        return cls(*children, leaf_size)
+
+    @property
+    def num_nodes(self) -> int:
+        return self.skip.shape[0]
+
+    @property
+    def num_triangles(self) -> int:
+        return self.prim.shape[0] - self.leaf_size
+
+    def closest_hit(self, origin: Array, direction: Array, t_max: Array) -> Hit:
+        """Closest hit of ONE ray in ``(0, t_max]``: see :func:`closest_hit_ray`."""
+        return closest_hit_ray(self, origin, direction, t_max)
+
+    def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
+        """Whether ONE ray hits anything in ``(0, t_max]``: see :func:`any_hit_ray`."""
+        return any_hit_ray(self, origin, direction, t_max)
+
+
+def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
+    """Move a host :class:`FlatBVH` to device arrays (floats in JAX's default precision)."""
+    dtype = jnp.result_type(float)
+    # Normals and zero-area flags exactly as the brute-force TriangleSet computes them.
+    tset = triangle_set(flat.triangles)
+    tri = jnp.asarray(tset.vertices, dtype)
+    # Zero-area triangles never hit: collapse them to a point, whose determinant is exactly
+    # 0 in the watertight test, instead of testing a flag per triangle.
+    tri = jnp.where(tset.valid[:, None, None], tri, tri[:, :1])
+    box = np.concatenate([flat.box_lo, flat.box_hi], axis=1)
+    as_int = lambda a: jnp.asarray(a, jnp.int32)
+    return BVH(
+        tuple(jnp.asarray(box[:, k], dtype) for k in range(6)),
+        as_int(flat.skip), as_int(flat.leaf_start), as_int(flat.leaf_count),
+        tuple(tri.reshape(-1, 9).T), as_int(flat.prim), jnp.asarray(tset.ng, dtype), leaf_size,
+    )
+
+
+def build_bvh(triangles, leaf_size: int = 2, n_bins: int = 16) -> BVH:
+    """Build a binned-SAH BVH over ``triangles`` (F, 3, 3) on the host, return it on device.
+
+    ``leaf_size`` triangles per leaf at most (2 measured fastest: 1.66 Mrays/s on 82k
+    triangles against 1.03 / 1.27 / 0.91 for 1 / 4 / 8), ``n_bins`` SAH bins per axis.
+    Raises ValueError on non-finite vertices (naming the triangle) or a bad shape.
+    """
+    return bvh_from_flat(build_flat_bvh(triangles, leaf_size, n_bins), leaf_size)
+
+
+# Box visits per leaf test in one traversal step (8 / 12 / 16 / 24 measured 1.41 / 1.51 /
+# 1.66 / 1.36 Mrays/s on 82k triangles; benchmarks/README.md).
+BOX_STEPS = 16
+
+
+class _Ray(NamedTuple):
+    """One ray as scalars: its watertight frame and its origin and inverse direction."""
+
+    frame: RayFrame
+    o: tuple
+    inv_d: tuple
+
+
+def _make_ray(ox, oy, oz, dx, dy, dz) -> _Ray:
+    """Per-ray set-up shared by every node: watertight frame and ``1/d`` (0 ↦ 1/tiny)."""
+    frame = ray_frame(jnp.stack([ox, oy, oz]), jnp.stack([dx, dy, dz]))
+    tiny = jnp.finfo(dx.dtype).tiny
+    # 1/tiny is finite, so the slab test never forms 0 · ∞ = NaN.
+    inv = tuple(1 / jnp.where(c == 0, tiny, c) for c in (dx, dy, dz))
+    return _Ray(frame, (ox, oy, oz), inv)
+
+
+def _slab_entry(box, ray: _Ray, t_max: Array) -> Array:
+    """Whether the ray meets the box within ``(0, t_max]`` (slab test, one ray, scalars).
+
+    The exit distance is scaled by ``1 + 2γ₃`` so that round-off never culls a box the ray
+    touches (PBR book 4th ed. §6.8.2).
+    """
+    # The cap on t gets more slack (32 ulp): the watertight test computes a triangle's t along
+    # another path than the slab's, and a hit exactly at t_max must still be reached.
+    t_near, t_far = jnp.zeros_like(t_max), t_max * (1 + gamma(64, t_max.dtype))
+    for k in range(3):  # three static axes
+        t0 = (box[k] - ray.o[k]) * ray.inv_d[k]
+        t1 = (box[k + 3] - ray.o[k]) * ray.inv_d[k]
+        t_near = jnp.maximum(t_near, jnp.minimum(t0, t1))
+        t_far = jnp.minimum(t_far, jnp.maximum(t0, t1) * (1 + 2 * gamma(3, t_max.dtype)))
+    return t_near <= t_far
+
+
+class _Cursor(NamedTuple):
+    """Traversal state of one ray.
+
+    node: ``0 ≤ node < N`` the next node to visit; ``N`` or more: done; negative: the leaf
+    ``−1 − node`` was entered and its triangles are still to be tested (traversal then goes
+    on at its skip link). One integer, so that a box visit has a single output and XLA
+    compiles it to one fused kernel (with a separate ``leaf`` field it fused the slab test
+    into both outputs' kernels). t, pos: closest hit so far (``pos`` indexes the reordered
+    triangles, −1 before any hit; ``t`` starts at ``t_max``).
+    """
+
+    node: Array
+    t: Array
+    pos: Array
+
+
+def _initial_cursor(t_max: Array, live) -> _Cursor:
+    """Cursor at the root (or already done when not ``live``), no hit yet."""
+    minus_one = jnp.full(t_max.shape, -1, jnp.int32)
+    node = jnp.where(live, 0, jnp.iinfo(jnp.int32).max).astype(jnp.int32)
+    return _Cursor(jnp.broadcast_to(node, t_max.shape), t_max, minus_one)
+
+
+def _box_step(bvh: BVH, ray: _Ray, c: _Cursor) -> _Cursor:
+    """Visit one node's box unless a leaf is pending: descend, skip, or mark the leaf."""
+    active = (c.node >= 0) & (c.node < bvh.num_nodes)
+    node = jnp.clip(c.node, 0, bvh.num_nodes - 1)
+    enter = active & _slab_entry(tuple(b[node] for b in bvh.box), ray, c.t)
+    is_leaf = bvh.leaf_count[node] > 0
+    # Descend into an entered interior node, mark an entered leaf, else follow the skip link.
+    next_node = jnp.where(enter, jnp.where(is_leaf, -1 - node, node + 1), bvh.skip[node])
+    return c._replace(node=jnp.where(active, next_node, c.node))
+
+
+def _leaf_step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool) -> _Cursor:
+    """Test the pending leaf's triangles one by one and keep the closest hit.
+
+    A ``fori_loop`` over the leaf's ``L`` slots, software-pipelined as
+    ``TriangleSet.closest_hit``: iteration i tests slot i and folds slot i−1's distance into
+    ``(t, pos)``, so the test's only consumer is the loop carry and XLA computes it once. (A
+    vmap over the block followed by ``argmin`` fed the test to several consumers, and XLA
+    fused a copy of it into each: the ``optimization_barrier`` meant to stop that is removed
+    before fusion.) Slots past the leaf's count belong to the next leaf and are masked.
+    """
+    pending = c.node < 0
+    leaf = jnp.where(pending, -1 - c.node, 0)
+    count = jnp.where(pending, bvh.leaf_count[leaf], 0)
+    start = bvh.leaf_start[leaf]
+    inf = jnp.asarray(jnp.inf, c.t.dtype)
+
+    def fold(t, pos, ti, k):
+        # As TriangleSet: strictly closer, but the first hit may sit exactly at t_max.
+        closer = (ti < t) | ((pos < 0) & (ti < inf))
+        return jnp.where(closer, ti, t), jnp.where(closer, k, pos)
+
+    def body(i, carry):
+        t, pos, ti_prev = carry
+        k = start + i
+        # One gather per coordinate from the SoA table: each a contiguous (lanes,) vector.
+        v = [a[k] for a in bvh.tri]
+        ti = jnp.where(i < count,
+                       intersect_triangle_t(ray.frame, v[0:3], v[3:6], v[6:9], c.t), inf)
+        t, pos = fold(t, pos, ti_prev, k - 1)
+        return t, pos, ti
+
+    t, pos, ti = lax.fori_loop(0, bvh.leaf_size, body, (c.t, c.pos, inf))
+    t, pos = fold(t, pos, ti, start + bvh.leaf_size - 1)
+    node = jnp.where(pending, bvh.skip[leaf], c.node)
+    if stop_at_first:
+        node = jnp.where(pos != c.pos, bvh.num_nodes, node)
+    return _Cursor(node, t, pos)
+
+
+def _step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool, box_steps: int) -> _Cursor:
+    """Up to ``box_steps`` box visits (until a leaf is entered), then that leaf's test.
+
+    A leaf's triangle tests cost several box tests, so a lane walks several boxes per leaf
+    test instead of paying for a (masked) leaf at every node. The box visits are a
+    ``fori_loop``, not unrolled: unrolled, XLA fused each visit's gathers into every later
+    consumer and recomputed them (4 unrolled visits plus a leaf cost 6× the sum of their parts).
+    """
+    c = lax.fori_loop(0, box_steps, lambda _, c: _box_step(bvh, ray, c), c)
+    return _leaf_step(bvh, ray, c, stop_at_first)
+
+
+def _running(bvh: BVH, c: _Cursor) -> Array:
+    """Whether a cursor still has nodes or a pending leaf (negative ``node``) to visit."""
+    return c.node < bvh.num_nodes
+
+
+def _to_hit(bvh: BVH, frame: RayFrame, t, pos) -> Hit:
+    """Turn a traversal result into a :class:`Hit` (prim −1, t = inf, zeros on a miss)."""
+    found = pos >= 0
+    p = jnp.maximum(pos, 0)
+    v = [a[p] for a in bvh.tri]
+    # Barycentrics of the winner only, once per ray (as TriangleSet does).
+    b1, b2 = barycentrics_frame(frame, v[0:3], v[3:6], v[6:9])
+    zero = jnp.zeros_like(t)
+    return Hit(jnp.where(found, t, jnp.inf), jnp.where(found, bvh.prim[p], -1).astype(jnp.int32),
+               jnp.where(found, b1, zero), jnp.where(found, b2, zero),
+               jnp.where(found, bvh.ng[p], jnp.zeros_like(bvh.ng[p])))
+
+
+def _traverse_one(bvh: BVH, origin, direction, t_max, stop_at_first: bool) -> _Cursor:
+    """while_loop over the tree for ONE ray; returns the final cursor."""
+    ray = _make_ray(*origin, *direction)
+    t_max = jnp.asarray(t_max, origin.dtype)
+    return lax.while_loop(
+        lambda c: _running(bvh, c),
+        lambda c: _step(bvh, ray, c, stop_at_first, BOX_STEPS),
+        _initial_cursor(t_max, True),
+    )
+
+
+def closest_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> Hit:
+    """Closest intersection of ONE ray with the BVH's triangles, ``t ∈ (0, t_max]``.
+
+    Stackless traversal along skip links; boxes are culled against the current closest
+    ``t``, so the search shrinks as hits are found. ``origin``, ``direction``: (3,), world
+    frame, ``direction`` need not be unit (``t`` is in units of ``‖direction‖``). Returns a
+    :class:`Hit` with ``prim = −1`` and ``t = inf`` on a miss. Vmap over rays.
+    """
+    c = _traverse_one(bvh, origin, direction, t_max, False)
+    return _to_hit(bvh, ray_frame(origin, direction), c.t, c.pos)
+
+
+def any_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> Array:
+    """Whether ONE ray hits any triangle with ``t ∈ (0, t_max]`` (stops at the first hit).
+
+    Shapes as :func:`closest_hit_ray`; returns a bool scalar.
+    """
+    return _traverse_one(bvh, origin, direction, t_max, True).pos >= 0

@@ -1,0 +1,418 @@
+"""Direct-illumination estimators: every form of the reflection equation in the lecture.
+
+At a surface point x seen along ``wo``, direct illumination is the reflection equation with
+the incident radiance replaced by emission,
+
+    L_r(x, wo) = ∫_{H²} f(x, wi, wo) L_e(r(x, wi), −wi) |cos θi| dwi     (hemispherical)
+               = ∫_{A_e} f(x, y, z) L_e(y, x) G(x, y) dA(y),             (surface area)
+    G(x, y) = V(x, y) |cos θi| |cos θo| / ‖x − y‖².
+
+Each estimator below is one Monte Carlo estimator ``f(X)/p(X)`` of one of these integrals,
+for ONE camera sample (batch with ``jax.vmap``):
+
+=========================  ==============================================  ===============
+name                       samples                                         reaches delta
+                                                                           lights?
+=========================  ==============================================  ===============
+``uniform_hemisphere``     wi uniform on H², ``p = 1/2π``                   no
+``cosine_hemisphere``      wi ∝ cos θi (Malley), ``p = cos θi / π``          no
+``bsdf``                   wi from the BSDF's own sampler                  no
+``light_area``             y uniform on the light's area (surface-area     yes
+                           form); ``p_A`` → solid angle by ``d²/|cos θo|``
+``light_solid_angle``      wi uniform in the light's solid angle           yes
+                           (spherical triangle / cone)
+``mis``                    ``light_samples`` light + ``bsdf_samples``       yes
+                           BSDF samples, balance or power heuristic
+``mis_one_sample``         one technique chosen at random (probability     yes
+                           ``light_prob`` for light sampling)
+=========================  ==============================================  ===============
+
+Hemisphere and BSDF sampling find emitters only by hitting them, so point, spot and
+directional lights (a delta in direction) are invisible to them: their images lack that
+light altogether (see ``tests/test_estimators.py::test_delta_lights_invisible``). Light
+sampling in area and solid-angle measure differ only for triangle lights (spheres always use
+the cone they subtend; environments the map's own distribution).
+
+Emitters seen directly by the camera contribute their radiance ``L_e`` to the pixel.
+
+Random dimensions: (0, 1) pixel jitter; light sample k uses the pair (2 + 4k, 3 + 4k) for the
+point on the light and dimension 4 + 4k to choose the light; BSDF sample k the pair
+(2 + 4·n_light + 2k, …). One-sample MIS uses 2 for the choice, 4–6 light, 8–9 BSDF.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+from jaxrt import lights as lt
+from jaxrt import materials as mt
+from jaxrt import sampler as smp
+from jaxrt import warp
+from jaxrt.camera import generate_ray
+from jaxrt.scene import (
+    TRIANGLE,
+    Scene,
+    SurfaceHit,
+    emitted,
+    intersect,
+    light_normal,
+    light_point_error,
+    material_at,
+    shading_normal,
+    unoccluded,
+    with_triangle_sampling,
+)
+from jaxrt.spawn import default_point_error, spawn_ray, spawn_ray_to
+from jaxrt.vecmath import to_local, to_world
+
+ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
+              "light_solid_angle", "mis", "mis_one_sample")
+HEURISTICS = ("balance", "power")
+
+
+class Estimator(NamedTuple):
+    """Static configuration of an estimator (hashable: it selects the compiled program).
+
+    name: one of :data:`ESTIMATORS`; light_samples, bsdf_samples: sample counts of the
+    multi-sample MIS estimator; heuristic: "balance" | "power"; light_prob: probability of
+    choosing light sampling in one-sample MIS.
+    """
+
+    name: str = "mis"
+    light_samples: int = 1
+    bsdf_samples: int = 1
+    heuristic: str = "power"
+    light_prob: float = 0.5
+
+    @property
+    def triangle_sampling(self) -> str:
+        """How triangle lights are sampled by this estimator ("area" or "solid_angle")."""
+        return "area" if self.name == "light_area" else "solid_angle"
+
+    @property
+    def num_dims(self) -> int:
+        """How many random dimensions one camera sample uses."""
+        if self.name == "mis":
+            return 2 + 4 * self.light_samples + 2 * self.bsdf_samples
+        if self.name == "mis_one_sample":
+            return 10
+        return 2 + 4
+
+
+def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:
+    """Validate and build an :class:`Estimator` from a name and parameters.
+
+    Raises ValueError for unknown names or heuristics, negative sample counts, MIS without
+    any sample, or ``light_prob`` outside (0, 1).
+    """
+    est = estimator if isinstance(estimator, Estimator) else Estimator(name=estimator)
+    est = est._replace(**params)
+    if est.name not in ESTIMATORS:
+        raise ValueError(f"unknown estimator {est.name!r}; choose one of {', '.join(ESTIMATORS)}")
+    if est.heuristic not in HEURISTICS:
+        raise ValueError(f"unknown MIS heuristic {est.heuristic!r}; choose 'balance' or 'power'")
+    for field in ("light_samples", "bsdf_samples"):
+        v = getattr(est, field)
+        if not isinstance(v, int) or v < 0:
+            raise ValueError(f"{field} must be an integer >= 0, got {v!r}")
+    if est.light_samples + est.bsdf_samples == 0:
+        raise ValueError("MIS needs at least one light or BSDF sample")
+    if not 0.0 < est.light_prob < 1.0:
+        raise ValueError(f"light_prob must lie strictly between 0 and 1, got {est.light_prob}")
+    return est
+
+
+class Stream(NamedTuple):
+    """The sample stream of one camera sample: ``u(dim)`` for the fixed (seed, pixel, index)."""
+
+    kind: str
+    seed: Array
+    pixel: Array
+    index: Array
+    spp: int
+
+    def u1(self, dim: int) -> Array:
+        return smp.sample_1d(self.kind, self.seed, self.pixel, self.index, dim, self.spp)
+
+    def u2(self, dim) -> Array:
+        return smp.sample_2d(self.kind, self.seed, self.pixel, self.index, dim, self.spp)
+
+
+class ShadingPoint(NamedTuple):
+    """A surface point ready for shading: position, viewer-facing normal, local wo, material."""
+
+    hit: SurfaceHit
+    n: Array  # (3,) geometric normal flipped towards the viewer
+    wo_local: Array  # (3,) wo in the frame of n
+    material: mt.Material
+
+
+# ---------------------------------------------------------------------------------------------
+# MIS weights
+# ---------------------------------------------------------------------------------------------
+
+
+def mis_weight(heuristic: str, n_f: Array, pdf_f: Array, n_g: Array, pdf_g: Array) -> Array:
+    """Weight of a sample of technique f against technique g (Veach 1997, §9.2).
+
+    balance: ``n_f p_f / (n_f p_f + n_g p_g)``; power (β = 2):
+    ``(n_f p_f)² / ((n_f p_f)² + (n_g p_g)²)``. ``n_f``, ``n_g`` are the sample counts; the
+    weights of the two techniques sum to one wherever either pdf is positive; 0 where both
+    vanish.
+    """
+    a = n_f * pdf_f
+    b = n_g * pdf_g
+    if heuristic == "power":
+        a, b = a * a, b * b
+    s = a + b
+    return jnp.where(s > 0, a / jnp.where(s > 0, s, 1), 0)
+
+
+def _div(num: Array, den: Array) -> Array:
+    return jnp.where(den > 0, num / jnp.where(den > 0, den, 1), 0)
+
+
+# ---------------------------------------------------------------------------------------------
+# Building blocks
+# ---------------------------------------------------------------------------------------------
+
+
+def _trace_emission(scene: Scene, x: ShadingPoint, wi: Array) -> tuple[Array, SurfaceHit]:
+    """``L_e(r(x, wi), −wi)``: the emitted radiance found along wi (environment on a miss)."""
+    o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
+    h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
+    return emitted(scene, h, -wi), h
+
+
+def _direction_sample(scene: Scene, x: ShadingPoint, wi_local: Array, pdf: Array) -> Array:
+    """``f · L_e · cos θi / p`` for a direction sampled in the hemispherical form."""
+    wi = to_world(wi_local, x.n)
+    le, _ = _trace_emission(scene, x, wi)
+    f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
+    return _div(f * le * jnp.abs(wi_local[2]), pdf)
+
+
+class _LightTerm(NamedTuple):
+    value: Array  # (3,) f · li · |cos θi| · V / pdf_light (unweighted)
+    pdf_light: Array
+    pdf_bsdf: Array
+    is_delta: Array
+
+
+def _light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) -> _LightTerm:
+    """Sample a light, test visibility, and form the light-sampling estimate and both pdfs."""
+    u = jnp.concatenate([u_select[None], u_point])
+    ls = lt.sample_li(scene.lights, x.hit.p, x.n, u)
+    wi_local = to_local(ls.wi, x.n)
+    f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
+    visible = _visible(scene, x, ls)
+    value = jnp.where(visible, _div(f * ls.li * jnp.abs(wi_local[2]), ls.pdf), 0)
+    pdf_bsdf = mt.bsdf_pdf(x.material, x.wo_local, wi_local, scene.material_kinds)
+    return _LightTerm(value, ls.pdf, pdf_bsdf, ls.is_delta)
+
+
+def _visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
+    """Shadow ray from x to the sampled light point (or towards an infinitely far light).
+
+    The target's error bound is :func:`jaxrt.scene.light_point_error` (the light's extent
+    seen from ``p``, not only ``|q|``).
+    """
+    finite = jnp.isfinite(ls.dist)
+    dist = jnp.where(finite, ls.dist, 1)
+    q = x.hit.p + dist * ls.wi
+    n_q = light_normal(scene, ls.light, q)
+    q_error = light_point_error(scene, ls.light, x.hit.p, q)
+    o_f, d_f, t_f = spawn_ray_to(x.hit.p, x.n, q, n_q, x.hit.p_error, q_error)
+    o_i, d_i = spawn_ray(x.hit.p, x.n, ls.wi, x.hit.p_error)
+    o = jnp.where(finite, o_f, o_i)
+    d = jnp.where(finite, d_f, d_i)
+    t_max = jnp.where(finite, t_f, jnp.inf)
+    return unoccluded(scene, o, d, t_max)
+
+
+class _BSDFTerm(NamedTuple):
+    value: Array  # (3,) weight · L_e (unweighted)
+    pdf_bsdf: Array
+    pdf_light: Array
+    is_delta: Array
+
+
+def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
+    """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
+    s = mt.bsdf_sample(x.material, x.wo_local, u, scene.material_kinds)
+    wi = to_world(s.wi, x.n)
+    le, h = _trace_emission(scene, x, wi)
+    pdf_light = lt.pdf_li(scene.lights, x.hit.p, wi, h.light, h.p)
+    return _BSDFTerm(s.weight * le, s.pdf, pdf_light, s.is_delta)
+
+
+# ---------------------------------------------------------------------------------------------
+# The estimators: one function each, for one shading point
+# ---------------------------------------------------------------------------------------------
+
+
+def uniform_hemisphere(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """Hemispherical form, ``wi`` uniform: ``f L_e cos θi · 2π``."""
+    wi = warp.square_to_uniform_hemisphere(s.u2(2))
+    return _direction_sample(scene, x, wi, warp.square_to_uniform_hemisphere_pdf(wi))
+
+
+def cosine_hemisphere(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """Hemispherical form, ``wi ∝ cos θi``: ``f L_e π`` (the cosine cancels)."""
+    wi = warp.square_to_cosine_hemisphere(s.u2(2))
+    return _direction_sample(scene, x, wi, warp.square_to_cosine_hemisphere_pdf(wi))
+
+
+def bsdf_sampling(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """Hemispherical form, ``wi`` from the BSDF: ``L_e · f cos θi / p_bsdf`` (the sample weight)."""
+    return _bsdf_term(scene, x, s.u2(2)).value
+
+
+def light_sampling(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """Surface-area form (``light_area``) or light solid angle (``light_solid_angle``).
+
+    Area form: ``f L_e G / p_A`` with ``G = V |cos θi| |cos θo| / d²``; the light module returns
+    the same density in solid angle, ``p_ω = p_A d² / |cos θo|`` (``area_to_solid_angle_pdf``),
+    so the estimate reads ``f L_e V |cos θi| / p_ω`` — the two are equal term by term.
+    """
+    return _light_term(scene, x, s.u2(2), s.u1(4)).value
+
+
+def _sum_over(term: Callable[[int], Array], count: int) -> Array:
+    """``Σ_k term(k)`` over ``k < count``: a direct call for one sample, else vmapped.
+
+    A vmap over ``arange(1)`` gave every value of the term a trailing axis of 1 and the sum
+    over it a reduction kernel: the default 1 light + 1 BSDF sample MIS render ran 1.2× slower
+    (paired, benchmarks/RESULTS.md).
+    """
+    if count == 1:
+        return term(0)
+    return jnp.sum(jax.vmap(term)(jnp.arange(count)), axis=0)
+
+
+def mis(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """Multi-sample MIS (Veach 1997, eq. 9.12) of ``n_l`` light and ``n_b`` BSDF samples.
+
+    ``F = 1/n_l Σ_j w_l(X_j) f(X_j)/p_l(X_j) + 1/n_b Σ_k w_b(Y_k) f(Y_k)/p_b(Y_k)`` with the
+    heuristic weights taking the counts ``n_l``, ``n_b``. Delta lights and delta BSDF lobes
+    cannot be sampled by the other technique: their weight is 1, but they are still divided by
+    their own sample count (otherwise a point light brightens as n_l grows).
+    """
+    n_l, n_b = est.light_samples, est.bsdf_samples
+    dtype = x.hit.p.dtype
+    total = jnp.zeros(3, dtype)
+    if n_l:
+        def one_light(k):
+            t = _light_term(scene, x, s.u2(2 + 4 * k), s.u1(4 + 4 * k))
+            w = mis_weight(est.heuristic, n_l, t.pdf_light, n_b, t.pdf_bsdf)
+            return jnp.where(t.is_delta, 1, w) * t.value
+
+        total += _sum_over(one_light, n_l) / n_l
+    if n_b:
+        def one_bsdf(k):
+            t = _bsdf_term(scene, x, s.u2(2 + 4 * n_l + 2 * k))
+            w = mis_weight(est.heuristic, n_b, t.pdf_bsdf, n_l, t.pdf_light)
+            return jnp.where(t.is_delta, 1, w) * t.value
+
+        total += _sum_over(one_bsdf, n_b) / n_b
+    return total
+
+
+def mis_one_sample(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """One-sample MIS (Veach 1997, §9.2.4): pick light sampling with probability c, else BSDF.
+
+    The chosen technique i contributes ``w_i f / (c_i p_i)`` with ``c_l = c``, ``c_b = 1 − c``
+    and the heuristic weight over ``(c_l p_l, c_b p_b)``; for the balance heuristic this is
+    ``f / (c p_l + (1 − c) p_b)``. Delta samples have weight 1 and divide by their own c_i.
+    """
+    c = jnp.asarray(est.light_prob, x.hit.p.dtype)
+    choose_light = s.u1(2) < c
+    tl = _light_term(scene, x, s.u2(4), s.u1(6))
+    tb = _bsdf_term(scene, x, s.u2(8))
+    wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, c, tl.pdf_light, 1 - c, tl.pdf_bsdf))
+    wb = jnp.where(tb.is_delta, 1, mis_weight(est.heuristic, 1 - c, tb.pdf_bsdf, c, tb.pdf_light))
+    return jnp.where(choose_light, wl * tl.value / c, wb * tb.value / (1 - c))
+
+
+_TECHNIQUES: dict[str, Callable] = {
+    "uniform_hemisphere": uniform_hemisphere,
+    "cosine_hemisphere": cosine_hemisphere,
+    "bsdf": bsdf_sampling,
+    "light_area": light_sampling,
+    "light_solid_angle": light_sampling,
+    "mis": mis,
+    "mis_one_sample": mis_one_sample,
+}
+
+
+# ---------------------------------------------------------------------------------------------
+# One camera sample
+# ---------------------------------------------------------------------------------------------
+
+
+def shade(scene: Scene, est: Estimator, hit: SurfaceHit, wo: Array, s: Stream) -> Array:
+    """Direct illumination reflected at ``hit`` towards ``wo`` (0 off triangle surfaces)."""
+    n = shading_normal(hit.ng, wo)
+    x = ShadingPoint(hit, n, to_local(wo, n), material_at(scene, hit))
+    value = _TECHNIQUES[est.name](scene, est, x, s)
+    return jnp.where(hit.kind == TRIANGLE, value, 0)
+
+
+def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed: Array,
+                  sampler: str = "independent", spp: int = 1) -> Array:
+    """Radiance (3,) of camera sample ``index`` of flat pixel ``pixel`` (row-major, row 0 top).
+
+    ``L = L_e(first hit, −d) + L_direct(first hit, −d)``: emitters seen by the camera add
+    their own radiance; surfaces add the estimator's direct illumination.
+    """
+    s = Stream(sampler, seed, pixel, index, spp)
+    xy = jnp.stack([pixel % scene.width, pixel // scene.width]).astype(jnp.int32)
+    o, d = generate_ray(scene.camera, xy, s.u2(0))
+    hit = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
+    wo = -d
+    return emitted(scene, hit, wo) + shade(scene, est, hit, wo, s)
+
+
+class PointEstimate(NamedTuple):
+    """Mean and standard error of an estimator at one shading point (see :func:`estimate_at`)."""
+
+    mean: Array  # (3,)
+    stderr: Array  # (3,)
+    num_samples: int
+
+
+def estimate_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: int = 0, *,
+                num_samples: int = 1 << 14, seed: int = 0, sampler: str = "independent",
+                **params) -> PointEstimate:
+    """Run one estimator many times at a chosen surface point: reflected radiance ± error.
+
+    The point ``p`` (3,) with unit normal ``n`` is shaded with material row ``material`` of the
+    scene, seen along ``wo`` (unit, towards the viewer); the scene supplies lights and
+    occluders. Returns the Monte Carlo mean of ``num_samples`` independent estimates and its
+    standard error ``σ/√N``. Useful to test an estimator against :mod:`jaxrt.analytic`.
+    """
+    est = make_estimator(estimator, **params)
+    scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+    dtype = scene.triangles.dtype
+    p, n, wo = (jnp.asarray(a, dtype) for a in (p, n, wo))
+    hit = SurfaceHit(t=jnp.asarray(1, dtype), p=p, p_error=default_point_error(p), ng=n,
+                     kind=jnp.int32(TRIANGLE), prim=jnp.int32(-1),
+                     material=jnp.int32(material), light=jnp.int32(-1))
+    values = _estimate_at(scene, est, hit, wo, jnp.uint32(seed), sampler, int(num_samples))
+    mean = jnp.mean(values, axis=0)
+    var = jnp.var(values, axis=0, ddof=1)
+    return PointEstimate(mean, jnp.sqrt(var / num_samples), int(num_samples))
+
+
+@jax.jit(static_argnames=("est", "sampler", "num_samples"))
+def _estimate_at(scene, est, hit, wo, seed, sampler, num_samples):
+    def one(k):
+        s = Stream(sampler, seed, jnp.uint32(0), k, num_samples)
+        return shade(scene, est, hit, wo, s)
+
+    return jax.vmap(one)(jnp.arange(num_samples, dtype=jnp.uint32))

@@ -1,0 +1,278 @@
+"""Stateless, counter-based sample streams: ``u = F(seed, pixel, index, dim)`` in ``[0, 1)``.
+
+Every value is a pure function of four integers, computed with a handful of uint32 operations,
+so a sample is the same whatever the batching, chunking or device count. Kernels are written for
+one value; batch them with ``jax.vmap`` (or just pass broadcastable integer arrays: every
+operation here is elementwise).
+
+Three streams (:data:`SamplerKind`):
+
+- ``"independent"``: a hash of the four integers (the ``lowbias32`` integer finaliser of
+  C. Wellons, chained so that for fixed (seed, pixel, dim) the map ``index ↦ hash`` is a
+  bijection of uint32).
+- ``"stratified"``: jittered stratification of ``spp`` samples per pixel. In 1D the unit
+  interval has ``spp`` strata; in 2D (:func:`sample_2d`) an ``nx × ny`` grid with
+  ``nx = ceil(√spp)``, ``ny = ceil(spp / nx)`` (exactly ``√spp × √spp`` when ``spp`` is a
+  square). Sample ``index`` takes the stratum ``π(index mod spp)`` of a hashed permutation
+  ``π`` (Kensler 2013, "Correlated Multi-Jittered Sampling") keyed by (seed, pixel, dim,
+  index div spp), plus a hashed jitter. If the grid has more cells than ``spp`` a random subset
+  is used — each sample is still uniform, so estimates stay unbiased.
+- ``"sobol"``: *padded* Owen-scrambled Sobol (as pbrt-v4's ``PaddedSobolSampler``): dimension
+  ``d`` is component ``d mod 2`` of the 2D Sobol (0,2)-sequence (van der Corput and the Pascal
+  generator matrix), with the index shuffled per (seed, pixel, pair ``d div 2``) and each
+  component nested-uniform scrambled per (seed, pixel, d). Scrambling and shuffling use the
+  hash-based Owen scrambling of Burley 2020 ("Practical Hash-based Owen Scrambling", JCGT 9(4))
+  with Vegdahl's improved Laine–Karras permutation. The first ``2^m`` indices of a pixel
+  form a scrambled (0, m, 2)-net in every dimension pair ``(2k, 2k+1)``.
+
+Floats: the top 24 bits of a uint32 ``h`` give ``u = (h >> 8) · 2^-24 ≤ 1 − 2^-24 < 1``, exact
+in float32. The output dtype is JAX's default float (float32, or float64 under
+``jax_enable_x64``); the *values* are the same multiples of ``2^-24`` in both modes.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+from jax import Array
+
+SamplerKind = Literal["independent", "stratified", "sobol"]
+SAMPLER_KINDS: tuple[str, ...] = ("independent", "stratified", "sobol")
+
+_U32 = jnp.uint32
+
+
+def _u32(x) -> Array:
+    """Cast integers (Python, int32, int64, uint32) to uint32 by wrapping modulo 2^32."""
+    x = jnp.asarray(x)
+    if x.dtype == _U32:
+        return x
+    # int64 → uint32 would be fine too, but int32 → uint32 must keep the bit pattern.
+    return x.astype(jnp.int32 if x.dtype.itemsize <= 4 else x.dtype).astype(_U32)
+
+
+def _c(v: int) -> Array:
+    return jnp.asarray(v, _U32)
+
+
+# ---------------------------------------------------------------------------- integer hashes
+
+
+def lowbias32(x: Array) -> Array:
+    """The ``lowbias32`` integer finaliser (C. Wellons, "Hash Prospector"): a uint32 bijection.
+
+    ``x ^= x>>16; x *= 0x7feb352d; x ^= x>>15; x *= 0x846ca68b; x ^= x>>16``.
+    """
+    x = _u32(x)
+    x = x ^ (x >> 16)
+    x = x * _c(0x7FEB352D)
+    x = x ^ (x >> 15)
+    x = x * _c(0x846CA68B)
+    return x ^ (x >> 16)
+
+
+def hash4(seed, pixel, index, dim) -> Array:
+    """Hash of four integers to uint32: ``H(dim ^ H(index ^ H(pixel ^ H(seed))))``.
+
+    Each step is a bijection of its innermost argument, so for fixed ``(seed, pixel, dim)``
+    distinct indices give distinct hashes. Scalars (seed, dim) are hoisted by XLA.
+    """
+    h = lowbias32(_u32(pixel) ^ lowbias32(seed))
+    return lowbias32(_u32(dim) ^ lowbias32(_u32(index) ^ h))
+
+
+def uint_to_unit_float(h: Array) -> Array:
+    """``(h >> 8) · 2^-24``: uint32 → ``[0, 1 − 2^-24]``, exact in float32 (never 1.0).
+
+    The dtype is JAX's default float (float32; float64 under ``jax_enable_x64``).
+    """
+    dtype = jnp.result_type(float)
+    return (_u32(h) >> 8).astype(jnp.int32).astype(dtype) * jnp.asarray(2.0**-24, dtype)
+
+
+# ---------------------------------------------------------------------------- independent
+
+
+def independent_1d(seed, pixel, index, dim) -> Array:
+    """Independent uniform variate ``u ∈ [0, 1)`` for ``(seed, pixel, index, dim)``."""
+    return uint_to_unit_float(hash4(seed, pixel, index, dim))
+
+
+# ---------------------------------------------------------------------------- stratified
+
+
+def permute(i: Array, n: int, key: Array) -> Array:
+    """A hashed permutation ``π_key`` of ``[0, n)`` evaluated at ``i`` (Kensler 2013, listing 3).
+
+    A bijection on the enclosing power of two, iterated (cycle walking) until it lands in
+    ``[0, n)`` — fewer than 2 rounds on average. ``n`` is static; ``i``, ``key`` uint32.
+    """
+    if n <= 1:
+        return jnp.zeros_like(_u32(i))
+    w = (1 << (n - 1).bit_length()) - 1  # mask of the enclosing power of two
+    p = _u32(key)
+    wc = _c(w)
+
+    def round_(i):
+        i = i ^ p
+        i = i * _c(0xE170893D)
+        i = i ^ (p >> 16)
+        i = i ^ ((i & wc) >> 4)
+        i = i ^ (p >> 8)
+        i = i * _c(0x0929EB3F)
+        i = i ^ (p >> 23)
+        i = i ^ ((i & wc) >> 1)
+        i = i * (_c(1) | (p >> 27))
+        i = i * _c(0x6935FA69)
+        i = i ^ ((i & wc) >> 11)
+        i = i * _c(0x74DCB303)
+        i = i ^ ((i & wc) >> 2)
+        i = i * _c(0x9E501CC3)
+        i = i ^ ((i & wc) >> 2)
+        i = i * _c(0xC860A3DF)
+        i = i & wc
+        return i ^ (i >> 5)
+
+    i = round_(_u32(i))
+    i = jax.lax.while_loop(lambda i: jnp.any(i >= n), lambda i: jnp.where(i >= n, round_(i), i), i)
+    return (i + p) % _c(n)
+
+
+def _jittered(stratum: Array, jitter_hash: Array, n: int) -> Array:
+    """``(stratum + ξ) / n`` clamped below 1 (the division may round up to 1.0)."""
+    u = (stratum.astype(jnp.int32).astype(jnp.result_type(float)) + uint_to_unit_float(
+        jitter_hash)) / n
+    return jnp.minimum(u, jnp.nextafter(jnp.ones_like(u), jnp.zeros_like(u)))
+
+
+def _stratum_key(seed, pixel, index, dim, spp: int) -> tuple[Array, Array]:
+    """Index within the current pass of ``spp`` samples, and the permutation key of that pass."""
+    index = _u32(index)
+    pass_ = index // _c(spp)
+    # A fresh permutation per pass of spp samples, so index ≥ spp keeps being stratified.
+    key = hash4(seed, pixel, pass_ ^ _c(0xA511E9B3), dim)
+    return index % _c(spp), key
+
+
+def stratified_1d(seed, pixel, index, dim, spp: int) -> Array:
+    """Jittered 1D stratum sample: ``(π(index mod spp) + ξ) / spp`` with hashed ``π`` and ``ξ``."""
+    k, key = _stratum_key(seed, pixel, index, dim, spp)
+    return _jittered(permute(k, spp, key), hash4(seed, pixel, index, dim), spp)
+
+
+def _grid(spp: int) -> tuple[int, int]:
+    nx = math.isqrt(spp)
+    nx = nx if nx * nx == spp else nx + 1
+    return nx, -(-spp // nx)
+
+
+def stratified_2d(seed, pixel, index, dim, spp: int) -> Array:
+    """Jittered 2D sample (2,) for dimensions ``(dim, dim + 1)`` on an ``nx × ny`` grid."""
+    nx, ny = _grid(spp)
+    k, key = _stratum_key(seed, pixel, index, dim, spp)
+    cell = permute(k, nx * ny, key)
+    return jnp.stack([_jittered(cell % _c(nx), hash4(seed, pixel, index, dim), nx),
+                      _jittered(cell // _c(nx), hash4(seed, pixel, index, _u32(dim) + 1), ny)],
+                     axis=-1)
+
+
+# ---------------------------------------------------------------------------- Owen-scrambled Sobol
+
+
+def reverse_bits(x: Array) -> Array:
+    """Reverse the 32 bits of a uint32 (five swap stages)."""
+    x = _u32(x)
+    x = ((x >> 1) & _c(0x55555555)) | ((x & _c(0x55555555)) << 1)
+    x = ((x >> 2) & _c(0x33333333)) | ((x & _c(0x33333333)) << 2)
+    x = ((x >> 4) & _c(0x0F0F0F0F)) | ((x & _c(0x0F0F0F0F)) << 4)
+    x = ((x >> 8) & _c(0x00FF00FF)) | ((x & _c(0x00FF00FF)) << 8)
+    return (x >> 16) | (x << 16)
+
+
+def _laine_karras(x: Array, seed: Array) -> Array:
+    """A hashed permutation where output bit k depends only on input bits ≤ k (Vegdahl's
+    improvement of Burley 2020, listing 5; as pbrt-v4's ``FastOwenScrambler``)."""
+    x = x ^ (x * _c(0x3D20ADEA))
+    x = x + seed
+    x = x * ((seed >> 16) | _c(1))
+    x = x ^ (x * _c(0x05526C56))
+    return x ^ (x * _c(0x53A22864))
+
+
+def owen_scramble(x: Array, seed: Array) -> Array:
+    """Nested uniform (Owen) scramble of a 32-bit fixed-point fraction: reverse, LK, reverse."""
+    return reverse_bits(_laine_karras(reverse_bits(x), _u32(seed)))
+
+
+def _superset_xor(y: Array) -> Array:
+    """Bit ``r`` of the result is the XOR of input bits ``j ⊇ r`` (GF(2) Möbius transform)."""
+    for k, m in enumerate((0xAAAAAAAA, 0xCCCCCCCC, 0xF0F0F0F0, 0xFF00FF00, 0xFFFF0000)):
+        y = y ^ ((y & _c(m)) >> (1 << k))
+    return y
+
+
+def sobol_2d_bits(index: Array) -> tuple[Array, Array]:
+    """Bit-reversed 32-bit Sobol points of dims 0 and 1: ``(rev(x0), rev(x1))``.
+
+    Dim 0 is the van der Corput sequence, ``x0 = rev(index)``. Dim 1 uses the Pascal matrix mod 2:
+    digit ``r`` (weight ``2^-(r+1)``) is ``⊕_{j ⊇ r} index_j`` by Lucas' theorem. Returned
+    bit-reversed because the Owen scramble works in that order.
+    """
+    index = _u32(index)
+    return index, _superset_xor(index)
+
+
+def sobol_1d(seed, pixel, index, dim) -> Array:
+    """Padded Owen-scrambled Sobol value of dimension ``dim`` (component ``dim mod 2`` of pair
+    ``dim div 2``), for ``(seed, pixel, index)``."""
+    dim = _u32(dim)
+    pair, comp = dim >> 1, dim & _c(1)
+    # Shuffle the index per (pixel, pair): decorrelates pixels and pairs, keeps nets intact.
+    shuffled = owen_scramble(index, hash4(seed, pixel, 0x5BD1E995, pair))
+    b0, b1 = sobol_2d_bits(shuffled)
+    rev = jnp.where(comp == 0, b0, b1)
+    # rev is already bit-reversed: scramble = rev(LK(rev(x))) = rev(LK(rev_bits_value)).
+    x = reverse_bits(_laine_karras(rev, hash4(seed, pixel, 0x68E31DA4, dim)))
+    return uint_to_unit_float(x)
+
+
+# ---------------------------------------------------------------------------- renderer API
+
+
+def _check(kind: str, spp: int) -> None:
+    if kind not in SAMPLER_KINDS:
+        raise ValueError(f"unknown sampler kind {kind!r}; expected one of {SAMPLER_KINDS}")
+    if not isinstance(spp, int) or spp <= 0:
+        raise ValueError(f"spp must be a positive Python int, got {spp!r}")
+
+
+def sample_1d(kind: SamplerKind, seed, pixel, index, dim, spp: int = 1) -> Array:
+    """One variate ``u ∈ [0, 1)`` of stream ``kind`` for ``(seed, pixel, index, dim)``.
+
+    ``kind`` and ``spp`` are static Python values (``spp`` only matters to ``"stratified"``);
+    the integer arguments may be traced and broadcast elementwise. Returns the default float
+    dtype (float32; float64 under x64).
+    """
+    _check(kind, spp)
+    if kind == "independent":
+        return independent_1d(seed, pixel, index, dim)
+    if kind == "stratified":
+        return stratified_1d(seed, pixel, index, dim, spp)
+    return sobol_1d(seed, pixel, index, dim)
+
+
+def sample_2d(kind: SamplerKind, seed, pixel, index, dim, spp: int = 1) -> Array:
+    """Two variates (…, 2) for dimensions ``(dim, dim + 1)``; draw pairs at even ``dim``.
+
+    ``"stratified"`` stratifies the pair jointly on an ``nx × ny`` grid; ``"sobol"`` returns the
+    pair's (0,2)-sequence when ``dim`` is even; ``"independent"`` two independent values.
+    """
+    _check(kind, spp)
+    if kind == "stratified":
+        return stratified_2d(seed, pixel, index, dim, spp)
+    d = _u32(dim)
+    return jnp.stack([sample_1d(kind, seed, pixel, index, d, spp),
+                      sample_1d(kind, seed, pixel, index, d + _c(1), spp)], axis=-1)

@@ -1,0 +1,388 @@
+"""The ``Scene`` pytree: geometry, materials, lights and camera, with its builder and validation.
+
+A scene is arrays (traced: vertices, albedos, radiances, the camera pose) plus *static*
+structure (hashable, part of the compiled program): the BSDF kinds present, the light kinds
+and counts, the acceleration structure's class, the image size. ``jax.jit`` therefore
+specialises to what the scene contains — a diffuse-only scene compiles no glossy code, a
+scene with only point lights no area-light sampling — and a scene of the same structure with
+new numbers (another albedo, another radiance) compiles nothing.
+
+Surface conventions:
+
+- Triangles are *two-sided for reflection*: the shading normal is the geometric normal
+  ``normalize((v1 − v0) × (v2 − v0))`` flipped to the side of the viewer ``wo``, so meshes
+  with inconsistent winding still shade. BSDFs themselves are one-sided about that normal.
+- Emission is one-sided by default: an emissive triangle emits on the side of its geometric
+  normal only (``two_sided_emission=True`` emits on both sides).
+- Sphere lights are pure emitters (they occlude and emit, but reflect nothing).
+
+Build a scene from numpy arrays in a few lines::
+
+    import numpy as np
+    from jaxrt import scene, materials, lights, camera
+    quad = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], np.float32)
+    floor = scene.mesh(quad, [[0, 1, 2], [0, 2, 3]], materials.diffuse(0.5))
+    cam = camera.look_at(eye=[0, 1, 3], target=[0, 0, 0], up=[0, 1, 0], fov_deg=40,
+                         width=64, height=48)
+    s = scene.build_scene([floor], cam, [lights.point_light([0, 2, 0], 10.0)])
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from collections.abc import Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from jaxrt import lights as lt
+from jaxrt import materials as mt
+from jaxrt.accel import build_geometry
+from jaxrt.intersect import any_hit, closest_hit, gamma
+from jaxrt.spawn import hit_point
+from jaxrt.vecmath import cross, dot, normalize
+
+MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
+
+
+class Mesh(NamedTuple):
+    """A triangle mesh with one material, and optionally uniform emission (a host-side record).
+
+    vertices: (V, 3) float; faces: (F, 3) int; material: a :class:`jaxrt.materials.Material`;
+    emission: (3,) radiance or None; two_sided_emission: emit on both sides.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    material: mt.Material
+    emission: np.ndarray | None = None
+    two_sided_emission: bool = False
+    name: str = "mesh"
+
+
+def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emission=False,
+         name="mesh") -> Mesh:
+    """Validate and wrap a mesh: finite vertices, integer faces inside the vertex array.
+
+    Raises ValueError naming the mesh and the problem (non-finite vertices, faces out of
+    range, wrong shapes, negative or non-finite emission).
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"mesh {name!r}: vertices must have shape (V, 3), got {v.shape}")
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise ValueError(f"mesh {name!r}: faces must have shape (F, 3) with F > 0, got {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer):
+        if not np.all(np.equal(np.mod(f, 1), 0)):
+            raise ValueError(f"mesh {name!r}: face indices must be integers")
+        f = f.astype(np.int64)
+    bad = np.flatnonzero(~np.all(np.isfinite(v), axis=1))
+    if bad.size:
+        raise ValueError(f"mesh {name!r}: non-finite vertex coordinates at vertex {int(bad[0])}"
+                         f" ({bad.size} vertices in all)")
+    out = np.flatnonzero(np.any((f < 0) | (f >= len(v)), axis=1))
+    if out.size:
+        raise ValueError(f"mesh {name!r}: face {int(out[0])} = {f[out[0]].tolist()} indexes "
+                         f"outside the vertex array of {len(v)} vertices")
+    e = None
+    if emission is not None:
+        e = np.broadcast_to(np.asarray(emission, np.float64), (3,)).copy()
+        if not np.all(np.isfinite(e)) or np.any(e < 0):
+            raise ValueError(f"mesh {name!r}: emission must be finite and >= 0, got {e.tolist()}")
+        if not np.any(e > 0):
+            e = None
+    return Mesh(v, f.astype(np.int32), material, e, bool(two_sided_emission), name)
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Scene:
+    """Everything a render needs. Arrays are traced; fields marked static are compile-time.
+
+    geometry: a triangle set or BVH (:mod:`jaxrt.accel`) over all F triangles.
+    triangles: (F, 3, 3) vertices, in the geometry's primitive order.
+    prim_material: (F,) int32 material index per triangle.
+    prim_light: (F,) int32 global light index of an emissive triangle, −1 otherwise.
+    materials: material table, leading (M,) axis (:func:`jaxrt.materials.material_table`).
+    lights: the light table (:mod:`jaxrt.lights`).
+    camera: the camera (:mod:`jaxrt.camera`); its width and height are static.
+    material_kinds: static sorted tuple of the BSDF kinds present.
+    """
+
+    geometry: Any
+    triangles: Array
+    prim_material: Array
+    prim_light: Array
+    materials: mt.Material
+    lights: Any
+    camera: Any
+    material_kinds: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
+
+    @property
+    def width(self) -> int:
+        return self.camera.width
+
+    @property
+    def height(self) -> int:
+        return self.camera.height
+
+    @property
+    def num_triangles(self) -> int:
+        return int(self.triangles.shape[0])
+
+    def replace(self, **changes) -> Scene:
+        """A copy with some fields replaced (e.g. a new camera or new materials)."""
+        return dataclasses.replace(self, **changes)
+
+    def summary(self) -> str:
+        """A few lines describing the scene's structure (what the compiled kernel contains)."""
+        kinds = ", ".join(mt.KIND_NAMES[k] for k in self.material_kinds)
+        return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
+                f"({type(self.geometry).__name__}), {self.materials.kind.shape[0]} materials "
+                f"[{kinds}], lights: {describe_lights(self.lights)}")
+
+
+def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = (), *,
+                accel: str = "auto", triangle_sampling: str = "solid_angle",
+                light_selection: str = "power") -> Scene:
+    """Assemble a :class:`Scene` from meshes, a camera and non-mesh lights.
+
+    Emissive meshes become triangle lights automatically (one light per triangle, radiance
+    from ``Mesh.emission``). ``extra_lights``: light records from :mod:`jaxrt.lights` (point,
+    spot, directional, sphere, environment). ``accel``: "auto" | "brute" | "bvh".
+    ``triangle_sampling``: "area" | "solid_angle"; ``light_selection``: "uniform" | "power".
+
+    With no light at all the scene renders black: a warning says so.
+    """
+    if len(meshes) == 0:
+        raise ValueError("build_scene needs at least one mesh")
+    tris, mat_idx, mats = [], [], []
+    emissive = []  # (first prim, count, radiance, two_sided) per emissive mesh
+    offset = 0
+    for i, m in enumerate(meshes):
+        if not isinstance(m, Mesh):
+            raise TypeError(f"meshes[{i}] is a {type(m).__name__}, expected jaxrt.scene.Mesh "
+                            "(build one with jaxrt.scene.mesh)")
+        t = m.vertices[m.faces]  # (F, 3, 3)
+        tris.append(t)
+        mat_idx.append(np.full(len(t), i, np.int32))
+        mats.append(m.material)
+        if m.emission is not None:
+            emissive.append((offset, t, m.emission, m.two_sided_emission, m.name))
+        offset += len(t)
+    triangles = np.concatenate(tris)
+    prim_material = np.concatenate(mat_idx)
+    table, kinds = mt.material_table(mats)
+
+    light_list = list(extra_lights)
+    for first, t, e, two, name in emissive:
+        area2 = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
+        keep = area2 > 0
+        if not np.all(keep):
+            warnings.warn(f"mesh {name!r}: {int((~keep).sum())} zero-area emissive triangles "
+                          "do not emit (they have no area to sample)", stacklevel=2)
+        prims = first + np.flatnonzero(keep)
+        if prims.size:
+            light_list.append(lt.triangle_lights(t[keep], np.broadcast_to(e, (prims.size, 3)),
+                                                 prims.astype(np.int32), two_sided=two))
+    if not light_list:
+        # a black environment keeps every kernel well defined; the image is black
+        warnings.warn("the scene has no lights: every image of it is black", stacklevel=2)
+        light_list = [lt.constant_environment([0.0] * 3)]
+    light_table = lt.light_table(light_list, triangle_sampling=triangle_sampling,
+                                 selection=light_selection,
+                                 scene_radius=_bounding_radius(triangles))
+    prim_light = np.full(len(triangles), -1, np.int32)
+    if light_table.triangle is not None:
+        prims = np.asarray(light_table.triangle.prim)
+        prim_light[prims] = light_table.structure.offset("triangle") + np.arange(len(prims))
+
+    # primitive indices of hits always refer to this (mesh) order, whatever the accelerator
+    geometry = build_geometry(triangles, accel=accel)
+    dt = jax.dtypes.canonicalize_dtype(jnp.float64)
+    return Scene(
+        geometry=geometry,
+        triangles=jnp.asarray(triangles, dt),
+        prim_material=jnp.asarray(prim_material),
+        prim_light=jnp.asarray(prim_light),
+        materials=table,
+        lights=light_table,
+        camera=camera,
+        material_kinds=kinds,
+    )
+
+
+def _bounding_radius(triangles: np.ndarray) -> float:
+    lo, hi = triangles.reshape(-1, 3).min(0), triangles.reshape(-1, 3).max(0)
+    return float(0.5 * np.linalg.norm(hi - lo))
+
+
+# ---------------------------------------------------------------------------------------------
+# Ray queries over the whole scene (triangles and sphere lights), for one ray
+# ---------------------------------------------------------------------------------------------
+
+
+class SurfaceHit(NamedTuple):
+    """What a ray hit: a triangle, a sphere light, or nothing (``kind == MISS``).
+
+    t: () distance (inf on a miss); p: (3,) hit point (from barycentrics on triangles);
+    p_error: (3,) bound on the rounding error of p (:func:`jaxrt.spawn.hit_point`);
+    ng: (3,) unit geometric normal (unflipped; outward on spheres); kind: () int32 MISS,
+    TRIANGLE or SPHERE; prim: () int32 triangle index (−1 otherwise); material: () int32;
+    light: () int32 global light index of an emitter (−1 if the surface does not emit).
+    """
+
+    t: Array
+    p: Array
+    p_error: Array
+    ng: Array
+    kind: Array
+    prim: Array
+    material: Array
+    light: Array
+
+
+def intersect(scene: Scene, o: Array, d: Array, t_max: Array) -> SurfaceHit:
+    """Closest hit of the ray ``o + t d``, ``0 < t < t_max``, against triangles and spheres.
+
+    On a miss, ``light`` is the environment's global index (−1 without an environment).
+    """
+    hit = closest_hit(scene.geometry, o, d, t_max)
+    tri_hit = hit.prim >= 0
+    prim = jnp.maximum(hit.prim, 0)
+    tri = scene.triangles[prim]
+    p, p_error = hit_point(tri[0], tri[1], tri[2], hit.b1, hit.b2)
+    ng = normalize(cross(tri[1] - tri[0], tri[2] - tri[0]))
+    kind = jnp.where(tri_hit, TRIANGLE, MISS).astype(jnp.int32)
+    t = jnp.where(tri_hit, hit.t, jnp.inf).astype(o.dtype)
+    env = lt.environment_light_index(scene.lights)
+    light = jnp.where(tri_hit, scene.prim_light[prim], env)
+    if scene.lights.structure.count("sphere"):
+        ts, js = lt.intersect_spheres(scene.lights, o, d, jnp.minimum(t, t_max))
+        sph = ts < t
+        c = scene.lights.sphere.center[_local_index(scene.lights.structure, "sphere", js)[0]]
+        p_s = o + ts * d
+        kind = jnp.where(sph, SPHERE, kind)
+        t = jnp.where(sph, ts, t)
+        p = jnp.where(sph, p_s, p)
+        # a sphere hit's error grows with |p| and with the distance travelled
+        p_error = jnp.where(sph, _sphere_point_error(p_s, o, ts * d), p_error)
+        ng = jnp.where(sph, normalize(p_s - c), ng)
+        light = jnp.where(sph, js, light)
+    return SurfaceHit(t=t, p=p, p_error=p_error, ng=ng, kind=kind,
+                      prim=jnp.where(tri_hit, hit.prim, -1),
+                      material=jnp.where(tri_hit, scene.prim_material[prim], 0),
+                      light=light.astype(jnp.int32))
+
+
+def _sphere_point_error(p: Array, o: Array, td: Array) -> Array:
+    """Conservative error of ``p = o + t d`` on a sphere: γ₅ (|o| + |t d|) per component."""
+    eps = jnp.finfo(p.dtype).eps / 2
+    g5 = 5 * eps / (1 - 5 * eps)
+    return g5 * (jnp.abs(o) + jnp.abs(td)) + g5 * jnp.abs(p)
+
+
+def unoccluded(scene: Scene, o: Array, d: Array, t_max: Array) -> Array:
+    """True when nothing blocks ``o + t d`` for ``0 < t < t_max`` (a shadow ray, any hit)."""
+    blocked = any_hit(scene.geometry, o, d, t_max)
+    if scene.lights.structure.count("sphere"):
+        ts, _ = lt.intersect_spheres(scene.lights, o, d, t_max)
+        blocked = blocked | (ts < t_max)
+    return ~blocked
+
+
+def emitted(scene: Scene, hit: SurfaceHit, wo: Array) -> Array:
+    """Radiance ``le`` leaving the hit surface towards ``wo`` (3,); the environment on a miss.
+
+    ``wo`` points from the hit back to the ray's origin (so a miss looks up ``−wo``).
+    """
+    lights = scene.lights
+    le = jnp.where(hit.kind == TRIANGLE, lt.le_triangle(lights, hit.light, wo), 0)
+    if lights.structure.count("sphere"):
+        le = jnp.where(hit.kind == SPHERE, lt.le_sphere(lights, hit.light, wo, hit.p), le)
+    if lights.structure.environment != "none":
+        le = jnp.where(hit.kind == MISS, lt.le_environment(lights, -wo), le)
+    return le
+
+
+def light_normal(scene: Scene, light: Array, q: Array) -> Array:
+    """Unit surface normal of the light ``light`` at its point ``q`` (zero for lights without
+    a surface: point, spot, directional, environment). Used to offset shadow-ray targets."""
+    lights = scene.lights
+    s = lights.structure
+    n = jnp.zeros_like(q)
+    if s.count("triangle"):
+        j, mine = _local_index(s, "triangle", light)
+        v = lights.triangle.vertices[j]
+        n = jnp.where(mine, normalize(cross(v[1] - v[0], v[2] - v[0])), n)
+    if s.count("sphere"):
+        j, mine = _local_index(s, "sphere", light)
+        n = jnp.where(mine, normalize(q - lights.sphere.center[j]), n)
+    return n
+
+
+def light_point_error(scene: Scene, light: Array, p: Array, q: Array) -> Array:
+    """Error bound (3,) of a light point ``q`` sampled from the shading point ``p``.
+
+    A shadow ray from ``p`` must stop short of the light's own surface by more than the
+    intersection test's error in ``t`` there. The watertight test works on the vertices
+    relative to the ray origin, so that error grows with the light's extent seen from ``p``,
+    not with ``|q|``: ``γ₇ max_i ‖v_i − p‖_∞`` in every component for a triangle (a unit
+    triangle 1e-4 above ``p``, steep rays of length 3e-4: ``t`` off by 1.5e-4 relative, and
+    11 % of the shadow rays re-hit the light with ``γ₇|q|`` alone), ``γ₇ (‖c − p‖_∞ + r)`` for
+    a sphere; plus ``γ₇|q|`` for ``q``'s own rounding. Lights without a surface: ``γ₇|q|``.
+    """
+    lights = scene.lights
+    s = lights.structure
+    g = gamma(7, q.dtype)
+    err = g * jnp.abs(q)
+    if s.count("triangle"):
+        j, mine = _local_index(s, "triangle", light)
+        extent = jnp.max(jnp.abs(lights.triangle.vertices[j].astype(q.dtype) - p))
+        err = jnp.where(mine, err + g * extent, err)
+    if s.count("sphere"):
+        j, mine = _local_index(s, "sphere", light)
+        c = lights.sphere.center[j].astype(q.dtype)
+        extent = jnp.max(jnp.abs(c - p)) + lights.sphere.radius[j].astype(q.dtype)
+        err = jnp.where(mine, err + g * extent, err)
+    return err
+
+
+def _local_index(structure, kind: str, light: Array) -> tuple[Array, Array]:
+    """Index within the ``kind`` table (clamped) and whether global ``light`` is of that kind."""
+    off, cnt = structure.offset(kind), structure.count(kind)
+    return jnp.clip(light - off, 0, cnt - 1), (light >= off) & (light < off + cnt)
+
+
+def with_triangle_sampling(lights, mode: str):
+    """The same lights with triangle lights sampled by ``mode`` ("area" | "solid_angle").
+
+    Only the static structure changes (no array is copied); the estimator chooses the mode.
+    """
+    if mode not in ("area", "solid_angle"):
+        raise ValueError(f"triangle sampling must be 'area' or 'solid_angle', got {mode!r}")
+    return dataclasses.replace(lights, structure=dataclasses.replace(lights.structure,
+                                                                     triangle_sampling=mode))
+
+
+def describe_lights(lights) -> str:
+    """E.g. ``"2 triangle, 1 point (selection power, triangles by solid_angle)"``."""
+    s = lights.structure
+    parts = [f"{c} {k}" for k, c in zip(lt.KINDS, s.counts, strict=True) if c]
+    return (f"{', '.join(parts)} (selection {s.selection}, triangles by "
+            f"{s.triangle_sampling})")
+
+
+def material_at(scene: Scene, hit: SurfaceHit) -> mt.Material:
+    """The material row of a hit (one gather per field)."""
+    return jax.tree.map(lambda a: a[hit.material], scene.materials)
+
+
+def shading_normal(ng: Array, wo: Array) -> Array:
+    """The geometric normal flipped to the viewer's side (two-sided reflection)."""
+    return jnp.where(dot(ng, wo) < 0, -ng, ng)

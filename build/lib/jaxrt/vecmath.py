@@ -1,0 +1,118 @@
+"""Vector maths for one sample, and the vocabulary used throughout jaxrt.
+
+Every function here works on single vectors (shape ``(3,)`` or scalars); batch with
+``jax.vmap``. Constants take the dtype of the input, so float32 stays float32 and the
+same code is correct under ``jax_enable_x64``.
+
+Vocabulary (pbrt's convention; Nori and Mitsuba name some of these differently):
+
+- ``u``: uniform variates in [0, 1).
+- ``wo``: unit direction from the shading point *towards the viewer*.
+- ``wi``: unit direction from the shading point *towards the light*. Both leave the surface.
+- ``n``: unit normal; ``p``: a point; ``t``: a distance along a ray; ``b1, b2``: barycentrics
+  of the second and third vertex (``b0 = 1 - b1 - b2``).
+- ``f``: BSDF value; ``le``: emitted radiance; ``li``: incident radiance.
+- ``pdf_light``, ``pdf_bsdf``: densities (solid angle unless said otherwise);
+  ``w_light``, ``w_bsdf``: multiple-importance-sampling weights.
+- Local (shading) frames have +z along the normal: ``cos θ = w[2]``.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+
+def dot(a: Array, b: Array) -> Array:
+    """Inner product of two vectors along the last axis: ``Σ a_k b_k``."""
+    return jnp.sum(a * b, axis=-1)
+
+
+def cross(a: Array, b: Array) -> Array:
+    """Cross product ``a × b`` of two 3-vectors."""
+    return jnp.cross(a, b)
+
+
+def length(a: Array) -> Array:
+    """Euclidean length ``‖a‖``."""
+    return jnp.sqrt(dot(a, a))
+
+
+def normalize(a: Array) -> Array:
+    """``a / ‖a‖``; the zero vector maps to zero instead of NaN."""
+    n = length(a)
+    safe = jnp.where(n > 0, n, jnp.ones_like(n))
+    return a / safe[..., None] if a.ndim > 1 else a / safe
+
+
+def safe_sqrt(x: Array) -> Array:
+    """``√max(x, 0)``: square root that tolerates tiny negative round-off."""
+    return jnp.sqrt(jnp.maximum(x, jnp.zeros_like(x)))
+
+
+def coordinate_system(n: Array) -> tuple[Array, Array]:
+    """Two unit tangents ``(s, t)`` with ``(s, t, n)`` a right-handed orthonormal frame.
+
+    Branchless construction of Duff et al. 2017, "Building an Orthonormal Basis, Revisited"
+    (JCGT 6(1)); continuous everywhere but on the sign flip at ``n_z = 0`` and exact for
+    ``n = ±z``. ``n``: unit (3,). Returns two (3,) vectors.
+    """
+    one = jnp.ones_like(n[2])
+    sign = jnp.where(n[2] >= 0, one, -one)
+    a = -one / (sign + n[2])
+    b = n[0] * n[1] * a
+    s = jnp.stack([one + sign * n[0] * n[0] * a, sign * b, -sign * n[0]])
+    t = jnp.stack([b, sign + n[1] * n[1] * a, -n[1]])
+    return s, t
+
+
+def to_local(v: Array, n: Array) -> Array:
+    """Express world vector ``v`` in the frame with +z along unit normal ``n``."""
+    s, t = coordinate_system(n)
+    return jnp.stack([dot(v, s), dot(v, t), dot(v, n)])
+
+
+def to_world(v: Array, n: Array) -> Array:
+    """Inverse of :func:`to_local`: local ``v`` (z along ``n``) to world coordinates."""
+    s, t = coordinate_system(n)
+    return v[0] * s + v[1] * t + v[2] * n
+
+
+def reflect(w: Array, n: Array) -> Array:
+    """Mirror of ``w`` about unit normal ``n``: ``2 (w·n) n − w`` (both leave the surface)."""
+    return 2 * dot(w, n) * n - w
+
+
+def spherical_direction(sin_theta: Array, cos_theta: Array, phi: Array) -> Array:
+    """Unit vector ``(sinθ cosφ, sinθ sinφ, cosθ)`` in a local frame with +z as the pole."""
+    return jnp.stack([sin_theta * jnp.cos(phi), sin_theta * jnp.sin(phi), cos_theta])
+
+
+def spherical_phi(w: Array) -> Array:
+    """Azimuth ``φ ∈ [0, 2π)`` of local direction ``w``."""
+    phi = jnp.arctan2(w[1], w[0])
+    return jnp.where(phi < 0, phi + 2 * jnp.pi, phi).astype(w.dtype)
+
+
+def spherical_theta(w: Array) -> Array:
+    """Polar angle ``θ ∈ [0, π]`` of unit local direction ``w`` (stable near the poles)."""
+    return 2 * jnp.arctan2(length(w - jnp.array([0, 0, 1], w.dtype)),
+                           length(w + jnp.array([0, 0, 1], w.dtype)))
+
+
+def area_to_solid_angle_pdf(pdf_area: Array, dist2: Array, cos_light: Array) -> Array:
+    """Change of measure of a density from area to solid angle.
+
+    ``p_ω = p_A · ‖x − y‖² / |cos θ_light|`` (the Jacobian ``dω = |cos θ_light| dA / ‖x − y‖²``).
+    Returns 0 where ``cos θ_light == 0`` (the light is seen edge-on and has no solid angle).
+    """
+    c = jnp.abs(cos_light)
+    safe = jnp.where(c > 0, c, jnp.ones_like(c))
+    return jnp.where(c > 0, pdf_area * dist2 / safe, jnp.zeros_like(pdf_area))
+
+
+def solid_angle_to_area_pdf(pdf_solid_angle: Array, dist2: Array, cos_light: Array) -> Array:
+    """Inverse change of measure: ``p_A = p_ω · |cos θ_light| / ‖x − y‖²``."""
+    safe = jnp.where(dist2 > 0, dist2, jnp.ones_like(dist2))
+    return jnp.where(dist2 > 0, pdf_solid_angle * jnp.abs(cos_light) / safe,
+                     jnp.zeros_like(pdf_solid_angle))
