@@ -13,10 +13,10 @@ import numpy as np
 from jaxrt.bvh import BVH, build_bvh
 from jaxrt.intersect import TriangleSet, triangle_set
 
-# Brute force is faster below this many triangles (2-core CPU, 2026-11-30: incoherent rays
-# cross over between 80 and 192 triangles, whole renders between 122 and 482, ≈ 140 by
-# log-log interpolation; benchmarks/crossover.py, benchmarks/README.md).
-AUTO_BVH_THRESHOLD = 128
+# Brute force is faster below this many triangles (2-core CPU, 2026-11-30, with the BVH's ray
+# compaction: incoherent rays cross over between 80 and 192 triangles, ≈ 90 by log-log
+# interpolation; benchmarks/crossover.py, benchmarks/README.md).
+AUTO_BVH_THRESHOLD = 96
 
 
 def build_geometry(triangles, accel: str = "auto", **bvh_options) -> TriangleSet | BVH:
@@ -28,7 +28,7 @@ def build_geometry(triangles, accel: str = "auto", **bvh_options) -> TriangleSet
         triangles: (F, 3, 3) finite vertices, world space.
         accel: ``"brute"`` (every triangle per ray, cost ∝ F), ``"bvh"`` (binned-SAH BVH,
             cost ∝ log F after an O(F log F) host build), or ``"auto"``: brute force when
-            ``F < AUTO_BVH_THRESHOLD`` (= 128, the measured crossover for incoherent rays),
+            ``F < AUTO_BVH_THRESHOLD`` (= 96, the measured crossover for incoherent rays),
             the BVH otherwise.
         **bvh_options: ``leaf_size``, ``n_bins`` for :func:`jaxrt.bvh.build_bvh`.
     Returns:
