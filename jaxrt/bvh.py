@@ -319,8 +319,9 @@ def _traverse_batch(bvh: BVH, origins, directions, t_max, stop_at_first: bool):
         out_t = out_t.at[ids].set(cur.t, mode="drop")
         out_pos = out_pos.at[ids].set(cur.pos, mode="drop")
         # ... then the running lanes, in order, into a batch of `cap` (the rest: padding)
-        (sel,) = jnp.nonzero(_running(bvh, cur), size=cap, fill_value=0)
-        pad = jnp.arange(cap) >= jnp.sum(_running(bvh, cur))
+        running = _running(bvh, cur)
+        (sel,) = jnp.nonzero(running, size=cap, fill_value=0)
+        pad = jnp.arange(cap) >= jnp.sum(running)
         take = lambda a, sel=sel: a[sel]
         rays, cur = jax.tree_util.tree_map(take, rays), jax.tree_util.tree_map(take, cur)
         cur = cur._replace(node=jnp.where(pad, jnp.iinfo(jnp.int32).max, cur.node))
@@ -354,7 +355,11 @@ def _make_traverse(stop_at_first: bool):
             # a batch of BVHs: plain lockstep traversal
             axes = (jax.tree_util.tree_map(lambda b: 0 if b else None, bvh_batched),
                     0 if o_b else None, 0 if d_b else None, 0 if t_b else None)
-            one = lambda g, o, d, t: traverse(g, o, d, t)
+            # (the primal, not `traverse`: calling it under this vmap would re-enter the rule)
+            def one(g, o, d, t):
+                c = _traverse_one(g, o, d, t, stop_at_first)
+                return c.t, c.pos
+
             return jax.vmap(one, axes)(bvh, origin, direction, t_max), (True, True)
         dtype = origin.dtype
         o = origin if o_b else jnp.broadcast_to(origin, (axis_size, 3))

@@ -173,6 +173,9 @@ def test_compacted_batches_match_brute_force(monkeypatch):
     two = jax.tree_util.tree_map(lambda a: jnp.stack([a, a]), bvh)
     per_bvh = jax.jit(jax.vmap(lambda g: jax.vmap(any_hit, (None, 0, 0, 0))(g, o, d, t_max)))(two)
     np.testing.assert_array_equal(np.asarray(per_bvh), np.stack([out["brute_any"]] * 2))
+    # vmapped over the BVHs alone (one ray): the rule's lockstep fallback
+    one_ray = jax.jit(jax.vmap(closest_hit, (0, None, None, None)))(two, o[0], d[0], t_max[0])
+    np.testing.assert_array_equal(np.asarray(one_ray.prim), [out["brute"].prim[0]] * 2)
 
 
 @pytest.mark.parametrize("name", list(MESHES))
