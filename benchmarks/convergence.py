@@ -92,7 +92,8 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
     import jax
 
     from jaxrt.estimators import make_estimator
-    from jaxrt.render import LANES, _mean_and_error, _Pass
+    from jaxrt.passes import LANES, RenderPass
+    from jaxrt.render import _mean_and_error
     from jaxrt.scene import with_triangle_sampling
 
     levels = sorted(int(n) for n in levels)
@@ -103,7 +104,7 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
     tile_size = LANES * math.ceil(tile_size / LANES)
     # spp only shapes the stratified stream: fixing it elsewhere lets levels share a program
     spp_total = levels[-1] if sampler == "stratified" else 1
-    run = _Pass(scene, seed, jax.devices()[:devices], tile_size, est=est, sampler=sampler,
+    run = RenderPass(scene, seed, jax.devices()[:devices], tile_size, est=est, sampler=sampler,
                 spp_total=spp_total, batch_size=batch_size)
     t_compile = run.compile(pass_spp)
     h, w = scene.height, scene.width

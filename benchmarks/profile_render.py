@@ -3,7 +3,7 @@
     python benchmarks/profile_render.py            # ~3 min on the 2-core machine
     python benchmarks/profile_render.py --trace    # also the per-kernel XLA:CPU trace
 
-Every stage is measured *inside the render*: ``jaxrt.render._render_tiles`` (256×256
+Every stage is measured *inside the render*: ``jaxrt.passes.render_tiles`` (256×256
 ``cornell_box``, 1 spp, the default 256-pixel tiles × 64 per ``lax.map`` step, i.e. 16 384
 lanes)
 is compiled once per level with its per-sample function replaced by a truncated MIS estimator
@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrt.estimators as est_mod
+import jaxrt.passes as ps
 import jaxrt.render as rd
 from jaxrt import lights as lt
 from jaxrt import materials as mt
@@ -124,17 +125,17 @@ def truncated_sample(level: int):
 def compile_level(scene, est, level: int):
     """The render program of one pass of 1 spp with ``camera_sample`` truncated at ``level``."""
     jax.clear_caches()  # the per-sample function is looked up at trace time
-    original = rd.camera_sample
-    rd.camera_sample = truncated_sample(level)
+    original = ps.camera_sample
+    ps.camera_sample = truncated_sample(level)
     try:
         static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
                       batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
         args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0))
         t0 = time.perf_counter()
-        exe = rd._render_tiles.lower(*args, **static).compile()
+        exe = ps.render_tiles.lower(*args, **static).compile()
         return exe, args, time.perf_counter() - t0
     finally:
-        rd.camera_sample = original
+        ps.camera_sample = original
 
 
 def hlo_stats(text: str) -> dict:

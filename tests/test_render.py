@@ -82,7 +82,7 @@ def test_bad_arguments(box16, kwargs, match):
 
 
 def test_nonfinite_samples_are_counted_not_kept(box16, monkeypatch):
-    import jaxrt.render as R
+    import jaxrt.passes as R
 
     real = R.camera_sample
 
@@ -91,9 +91,9 @@ def test_nonfinite_samples_are_counted_not_kept(box16, monkeypatch):
         return jnp.where((pixel == 5) & (index == 1), jnp.nan, v)
 
     monkeypatch.setattr(R, "camera_sample", poisoned)
-    R._render_tiles.clear_cache()
+    R.render_tiles.clear_cache()
     r = render(box16, "mis", spp=4, progress=False)
-    R._render_tiles.clear_cache()
+    R.render_tiles.clear_cache()
     assert r.nonfinite == 1
     assert np.all(np.isfinite(r.image))
 
