@@ -6,8 +6,8 @@ shading → estimators → render → files); see README.md for a tour.
 
 __version__ = "0.1.0"
 
-# The top-level names load lazily so that ``import jaxrt.warp`` stays light and no import
-# cycle can form between the pipeline's modules and this package.
+# The top-level names load lazily so that no import cycle can form between the pipeline's
+# modules and this package -- except ``render``, below.
 _LAZY = {
     "Scene": ("jaxrt.scene", "Scene"),
     "build_scene": ("jaxrt.scene", "build_scene"),
@@ -29,3 +29,10 @@ def __getattr__(name):
 
 
 __all__ = list(_LAZY)
+
+# ``render`` is both a submodule and a function. Importing the submodule (which any
+# ``import jaxrt.render`` or ``from jaxrt.render import ...`` does, once) sets the package
+# attribute ``jaxrt.render`` to the module; binding the function here, after that import, makes
+# ``jaxrt.render`` the function for good (``sys.modules["jaxrt.render"]`` stays the module).
+from jaxrt.render import render  # noqa: E402, F401
+
