@@ -14,9 +14,23 @@ computed per channel from running sums. How the work is cut never changes the nu
   at any resolution; tiles are split over ``jax.devices()`` (each device runs the same
   program on its own range of tiles);
 - the sample loop is a ``lax.fori_loop``; a *pass* renders ``spp_per_pass`` samples of every
-  pixel with the sample indices ``[start, start + spp_per_pass)``;
+  pixel with the sample indices ``[start, start + spp_per_pass)``, summed in float32, and
+  the passes' sums are added in float64 on the host;
 - every sample is a pure function of (seed, pixel, sample index), so the same seed gives a
   bit-identical image whatever the tile size, batch size or device count.
+
+Pass size. By default a pass holds about :data:`SAMPLES_PER_PASS` samples (~1 s at the
+~1 M samples/s of the 256² Cornell box on one CPU core), so that the progress bar moves,
+the time budget and Ctrl-C take effect within a pass, and the error can be checked. The pass
+size is chosen from the image size and ``spp`` alone, never from a clock: it divides
+``spp`` (one compiled program), and the same arguments give the same image, bit for bit,
+however long the passes take. An explicit ``spp_per_pass`` changes the float32
+partial sums, hence the last bits (≤ 1e-5 relative, tested).
+
+Stopping: after ``spp`` samples, or before a pass that would end past ``time_budget``
+seconds of rendering, or once the error target is met, or at Ctrl-C (SIGINT): the pass
+running finishes and :class:`RenderInterrupted` carries the image rendered so far (a second
+Ctrl-C interrupts at once).
 
 Samples that are not finite (a NaN or Inf from a degenerate configuration) never reach the
 image: they are replaced by zero, counted, and the count is reported. Long renders show a
@@ -31,26 +45,32 @@ the image is gathered by the final ``np.asarray``).
 from __future__ import annotations
 
 import math
+import signal
+import sys
+import threading
 import time
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import jax
 import numpy as np
 
-from jaxrt.estimators import Estimator, make_estimator
+from jaxrt.estimators import Estimator, make_estimator, prepare_scene
 from jaxrt.passes import LANES, RenderPass
 from jaxrt.sampler import SAMPLER_KINDS
-from jaxrt.scene import Scene, with_triangle_sampling
+from jaxrt.scene import Scene
 
 
 class RenderResult(NamedTuple):
     """What :func:`render` returns.
 
     image: (H, W, 3) float32 mean radiance; stderr: (H, W, 3) float32 standard error of that
-    mean; spp: samples per pixel taken; nonfinite: how many samples were NaN/Inf (dropped as
-    zero); timings: dict of seconds (``compile``, ``render``, ``total``) and ``samples_per_s``;
-    passes: number of progressive passes run; stopped_by: "spp", "time_budget" or
-    "target_error".
+    mean (the sample standard deviation over √spp; it is 0 where every sample of a pixel was
+    equal, e.g. a penumbra whose rare lit samples were never drawn: an *estimate* from the
+    samples taken, not a bound); spp: samples per pixel taken; nonfinite: how many samples
+    were NaN/Inf (dropped as zero); timings: dict of seconds (``compile``, ``render``,
+    ``total``) and ``samples_per_s``; passes: number of progressive passes run; stopped_by:
+    "spp", "time_budget", "target_error" or "interrupted".
     """
 
     image: np.ndarray
@@ -67,13 +87,37 @@ class RenderResult(NamedTuple):
         return _relative_error(self.image, self.stderr)
 
 
+class RenderInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`render`: ``result`` is the image of the passes completed (a
+    :class:`RenderResult` with ``stopped_by="interrupted"``), or None if none was."""
+
+    def __init__(self, result: RenderResult | None):
+        super().__init__("render interrupted"
+                         + (f" after {result.spp} spp" if result is not None else ""))
+        self.result = result
+
+
+#: Samples (pixels × spp) per progressive pass by default: ~1 s at 1 M samples/s.
+SAMPLES_PER_PASS = 2**20
+
+
+def default_spp_per_pass(num_pixels: int, spp: int | None) -> int:
+    """Samples per pixel per pass: the largest divisor of ``spp`` (any power of two when spp
+    is unbounded) not above ``SAMPLES_PER_PASS / num_pixels`` (at least 1). A function of the
+    image size and spp only, so the image never depends on the machine's speed."""
+    target = max(1, SAMPLES_PER_PASS // max(1, num_pixels))
+    if spp is None:
+        return 1 << (target.bit_length() - 1)
+    return max(d for d in range(1, min(spp, target) + 1) if spp % d == 0)
+
+
 def _relative_error(image: np.ndarray, stderr: np.ndarray) -> float:
     floor = max(1e-3 * float(np.mean(image)), 1e-12)
     return float(np.mean(stderr / np.maximum(image, floor)))
 
 
-def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed: int = 0, *,
-           sampler: str = "independent", spp_per_pass: int | None = None,
+def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = None,
+           seed: int = 0, *, sampler: str = "independent", spp_per_pass: int | None = None,
            time_budget: float | None = None, target_error: float | None = None,
            tile_size: int = 256, batch_size: int = 64, devices: int | None = None,
            progress: bool | None = None, **estimator_params) -> RenderResult:
@@ -84,25 +128,35 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
         estimator: a name from :data:`jaxrt.estimators.ESTIMATORS` or an ``Estimator``;
             ``estimator_params`` (light_samples, bsdf_samples, heuristic, light_prob) refine it.
         spp: samples per pixel (the maximum when a time budget or target error is given).
+            Default: 16, or unbounded when a time budget or target error is given.
         seed: the random seed; the same seed gives the same image, bit for bit.
         sampler: "independent" | "stratified" | "sobol" sample stream.
-        spp_per_pass: samples per progressive pass (default: all of them in one pass, or
-            about 1/16 of them when a time budget or target error is set).
-        time_budget: stop after the pass during which this many seconds have elapsed.
-        target_error: stop once the mean relative standard error falls below this.
+        spp_per_pass: samples per progressive pass (default: :func:`default_spp_per_pass`,
+            about a second of work per pass).
+        time_budget: seconds of rendering (compilation excluded); no pass starts that would
+            end past it, judged from the last pass's time (at least one pass runs).
+        target_error: stop once the mean relative standard error falls below this (checked
+            after each pass, from 16 spp on; see :func:`_error_for_stopping`).
         tile_size: pixels per tile (rounded up to a multiple of 16).
         batch_size: tiles evaluated at once (memory ∝ tile_size · batch_size). The default
             256 × 64 = 16 384 lanes per step renders the 256² Cornell box 1.4–1.6× faster
             than 1 024 lanes (XLA:CPU's fixed cost per kernel call is amortised over more
             lanes; benchmarks/RESULTS.md); a small image still runs as one step of its tiles.
         devices: how many of ``jax.devices()`` to split the tiles over (default: all).
-        progress: show a tqdm bar (default: when more than one pass runs).
+        progress: print what is compiled and show a tqdm bar on stderr (default: when more
+            than one pass runs).
 
-    Returns a :class:`RenderResult`.
+    Returns a :class:`RenderResult`. Raises :class:`RenderInterrupted` (a KeyboardInterrupt
+    carrying the partial result) on Ctrl-C.
     """
     est = make_estimator(estimator, **estimator_params)
-    if not isinstance(spp, int | np.integer) or spp <= 0:
-        raise ValueError(f"spp must be a positive integer, got {spp!r}")
+    adaptive = time_budget is not None or target_error is not None
+    if spp is None and not adaptive:
+        spp = 16
+    if spp is not None and (not isinstance(spp, int | np.integer) or isinstance(spp, bool)
+                            or spp <= 0):
+        raise ValueError(f"spp must be a positive integer (or None with a time budget or "
+                         f"target error), got {spp!r}")
     if sampler not in SAMPLER_KINDS:
         raise ValueError(f"unknown sampler {sampler!r}; choose one of {SAMPLER_KINDS}")
     if time_budget is not None and not time_budget > 0:
@@ -111,65 +165,97 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed
         raise ValueError(f"target_error must be > 0, got {target_error}")
     if tile_size <= 0 or batch_size <= 0:
         raise ValueError("tile_size and batch_size must be positive")
+    if spp_per_pass is not None and not (isinstance(spp_per_pass, int | np.integer)
+                                         and spp_per_pass > 0):
+        raise ValueError(f"spp_per_pass must be a positive integer, got {spp_per_pass!r}")
     num_devices = len(jax.devices()) if devices is None else int(devices)
     if not isinstance(num_devices, int) or not 1 <= num_devices <= len(jax.devices()):
         raise ValueError(f"devices must be between 1 and {len(jax.devices())}, got {devices}")
     # every pixel must take the same vectorised code path (XLA's remainder loop may round
     # differently), so tiles hold a whole number of 16-lane vectors
     tile_size = LANES * math.ceil(int(tile_size) / LANES)
-    adaptive = time_budget is not None or target_error is not None
+    h, w = scene.height, scene.width
     if spp_per_pass is None:
-        spp_per_pass = max(1, spp // 16) if adaptive else spp
-    spp_per_pass = min(int(spp_per_pass), int(spp))
-    # the estimator decides how triangle lights are sampled (a static property of the lights)
-    scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+        spp_per_pass = default_spp_per_pass(h * w, None if spp is None else int(spp))
+    spp_per_pass = int(spp_per_pass) if spp is None else min(int(spp_per_pass), int(spp))
+    # light_area / light_solid_angle fix the measure of triangle-light sampling; the other
+    # estimators use the scene's own (a static property of the light table)
+    scene = prepare_scene(scene, est)
 
-    run = RenderPass(scene, seed, jax.devices()[:num_devices], tile_size, est=est, sampler=sampler,
-                spp_total=int(spp), batch_size=int(batch_size))
+    # a stratified stream needs its number of strata: one stratification per pass if unbounded
+    spp_total = int(spp) if spp is not None else spp_per_pass
+    run = RenderPass(scene, seed, jax.devices()[:num_devices], tile_size, est=est,
+                     sampler=sampler, spp_total=spp_total, batch_size=int(batch_size))
+    num_passes = None if spp is None else math.ceil(spp / spp_per_pass)
+    show = progress if progress is not None else num_passes != 1
     t0 = time.perf_counter()
+    if show:
+        print(f"jaxrt: compiling {est.name} ({sampler}) for {w}x{h}, {spp_per_pass} spp per "
+              f"pass on {num_devices} {jax.devices()[0].platform.upper()} device(s) ...",
+              file=sys.stderr, flush=True)
     t_compile = run.compile(spp_per_pass)
+    if show:
+        print(f"jaxrt: compiled in {t_compile:.1f} s", file=sys.stderr, flush=True)
 
-    num_passes = math.ceil(spp / spp_per_pass)
-    show = progress if progress is not None else num_passes > 1
-    bar = _progress_bar(num_passes, show)
+    bar = _progress_bar(spp, show)
     s1 = s2 = bad = None
     done, passes, stopped_by = 0, 0, "spp"
     t_start = time.perf_counter()
-    while done < spp:
-        # a shorter last pass compiles its own program (count is static)
-        count = min(spp_per_pass, spp - done)
-        sums = run(done, count)
-        if s1 is None:
-            s1, s2, bad = (sums.s1.astype(np.float64), sums.s2.astype(np.float64),
-                           sums.bad.astype(np.int64))
-        else:
-            s1 += sums.s1
-            s2 += sums.s2
-            bad += sums.bad
-        done += count
-        passes += 1
-        bar.update(1)
-        elapsed = time.perf_counter() - t_start
-        if done < spp and time_budget is not None and elapsed >= time_budget:
-            stopped_by = "time_budget"
-            break
-        if done < spp and target_error is not None and done > 1:
-            mean, err = _mean_and_error(s1, s2, done)
-            rel = _relative_error(mean, err)
-            bar.set_postfix(rel_err=f"{rel:.4f}")
-            if rel <= target_error:
-                stopped_by = "target_error"
+    last_pass = 0.0
+    with _sigint_flag() as interrupted:
+        while spp is None or done < spp:
+            # a shorter last pass compiles its own program (count is static)
+            count = spp_per_pass if spp is None else min(spp_per_pass, spp - done)
+            t_pass = time.perf_counter()
+            sums = run(done, count)
+            if s1 is None:
+                s1, s2, bad = (sums.s1.astype(np.float64), sums.s2.astype(np.float64),
+                               sums.bad.astype(np.int64))
+            else:
+                s1 += sums.s1
+                s2 += sums.s2
+                bad += sums.bad
+            done += count
+            passes += 1
+            now = time.perf_counter()
+            last_pass, elapsed = now - t_pass, now - t_start
+            rate = done * h * w / max(elapsed, 1e-12)
+            left = None if spp is None else (spp - done) * h * w / rate
+            stop = None
+            if interrupted.is_set():
+                stop = "interrupted"
+            elif spp is not None and done >= spp:
+                stop = "spp"
+            if stop is None and time_budget is not None:
+                if elapsed + last_pass > time_budget:
+                    stop = "time_budget"
+                left = min(math.inf if left is None else left, time_budget - elapsed)
+            if stop is None and target_error is not None and done >= 16:
+                rel = _error_for_stopping(s1, s2, done)
+                bar.postfix(rel_err=f"{rel:.4f}")
+                if rel <= target_error:
+                    stop = "target_error"
+                # σ ∝ 1/√n: the time the samples still needed take
+                more = done * ((rel / target_error) ** 2 - 1) * h * w / rate
+                left = more if left is None else min(left, more)
+            bar.advance(count, rate, 0.0 if stop else left)
+            if stop is not None:
+                stopped_by = stop
                 break
     bar.close()
     t_render = time.perf_counter() - t_start
-    mean, err = _mean_and_error(s1, s2, done)
-    h, w = scene.height, scene.width
-    timings = {"compile": t_compile, "render": t_render, "total": time.perf_counter() - t0,
-               "samples_per_s": done * h * w / max(t_render, 1e-12)}
-    return RenderResult(image=mean.reshape(h, w, 3).astype(np.float32),
-                        stderr=err.reshape(h, w, 3).astype(np.float32), spp=done,
-                        nonfinite=int(bad.sum()), timings=timings, passes=passes,
-                        stopped_by=stopped_by)
+    result = None
+    if done:
+        mean, err = _mean_and_error(s1, s2, done)
+        timings = {"compile": t_compile, "render": t_render, "total": time.perf_counter() - t0,
+                   "samples_per_s": done * h * w / max(t_render, 1e-12)}
+        result = RenderResult(image=mean.reshape(h, w, 3).astype(np.float32),
+                              stderr=err.reshape(h, w, 3).astype(np.float32), spp=done,
+                              nonfinite=int(bad.sum()), timings=timings, passes=passes,
+                              stopped_by=stopped_by)
+    if stopped_by == "interrupted":
+        raise RenderInterrupted(result)
+    return result
 
 
 def _mean_and_error(s1: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -181,22 +267,80 @@ def _mean_and_error(s1: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray,
     return mean, np.sqrt(var / n)
 
 
-class _NoBar:
-    def update(self, n):
-        pass
+def _error_for_stopping(s1: np.ndarray, s2: np.ndarray, n: int) -> float:
+    """The mean relative error that ``target_error`` is compared with.
 
-    def set_postfix(self, **kw):
-        pass
+    As :attr:`RenderResult.relative_error`, except that no lit pixel counts as exact: a pixel
+    whose n samples were all equal has σ̂ = 0 (or float32 rounding noise), yet an outcome not
+    drawn yet (a penumbra's rare lit sample) can still have probability 3/n (the rule of
+    three). So every lit pixel counts with at least the relative standard error of a mean of
+    n samples that differ with probability p = 3/n, √(p(1 − p)/n)/(1 − p) ≈ √3/n: a render
+    whose pixels are mostly constant cannot stop early on their zeros, and the floor falls
+    faster than any real error (1/n against 1/√n). Black pixels count as they are.
+    """
+    mean, err = _mean_and_error(s1, s2, n)
+    p = min(3.0 / n, 0.5)
+    floor = np.sqrt(p * (1 - p) / n) / (1 - p)
+    err = np.where(mean > 0, np.maximum(err, floor * mean), err)
+    return _relative_error(mean, err)
+
+
+@contextmanager
+def _sigint_flag():
+    """Turn the first Ctrl-C into a flag the pass loop checks (a second one interrupts at
+    once). Only in the main thread, where Python delivers signals; elsewhere a dummy flag."""
+    flag = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield flag
+        return
+    previous = signal.getsignal(signal.SIGINT)
+
+    def handler(signum, frame):
+        if flag.is_set():
+            raise KeyboardInterrupt
+        flag.set()
+
+    signal.signal(signal.SIGINT, handler)
+    try:
+        yield flag
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class _Bar:
+    """tqdm over samples per pixel, with samples/s and the time left (or nothing at all)."""
+
+    def __init__(self, total: int | None, show: bool):
+        self.tqdm = None
+        if not show:
+            return
+        try:
+            from tqdm.auto import tqdm
+        except ImportError:  # tqdm is optional: render silently without it
+            return
+        self.tqdm = tqdm(total=total, unit="spp", desc="render", file=sys.stderr,
+                         bar_format="{desc}: {percentage:3.0f}%|{bar}| {n}/{total} spp "
+                         "[{elapsed}{postfix}]" if total else
+                         "{desc}: {n} spp [{elapsed}{postfix}]")
+        self.extra = {}
+
+    def postfix(self, **kw):
+        if self.tqdm is not None:
+            self.extra.update(kw)
+
+    def advance(self, n: int, rate: float, left: float | None):
+        if self.tqdm is None:
+            return
+        post = {"Msamples/s": f"{rate / 1e6:.2f}"}
+        if left is not None and math.isfinite(left):
+            post["eta"] = f"{max(left, 0):.0f}s"
+        self.tqdm.set_postfix(post | self.extra, refresh=False)
+        self.tqdm.update(n)
 
     def close(self):
-        pass
+        if self.tqdm is not None:
+            self.tqdm.close()
 
 
-def _progress_bar(total: int, show: bool):
-    if not show:
-        return _NoBar()
-    try:
-        from tqdm.auto import tqdm
-    except ImportError:  # tqdm is optional: render silently without it
-        return _NoBar()
-    return tqdm(total=total, unit="pass", desc="render")
+def _progress_bar(total: int | None, show: bool) -> _Bar:
+    return _Bar(total, show)
