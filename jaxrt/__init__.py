@@ -4,10 +4,13 @@ The package mirrors the rendering pipeline (samples → warps → rays → inter
 shading → estimators → render → files); see README.md for a tour.
 """
 
+import sys
+import types
+
 __version__ = "0.1.0"
 
-# The top-level names load lazily so that no import cycle can form between the pipeline's
-# modules and this package -- except ``render``, below.
+# The top-level names load lazily so that ``import jaxrt.cli`` stays light (no JAX) and no
+# import cycle can form between the pipeline's modules and this package.
 _LAZY = {
     "Scene": ("jaxrt.scene", "Scene"),
     "build_scene": ("jaxrt.scene", "build_scene"),
@@ -30,9 +33,19 @@ def __getattr__(name):
 
 __all__ = list(_LAZY)
 
-# ``render`` is both a submodule and a function. Importing the submodule (which any
-# ``import jaxrt.render`` or ``from jaxrt.render import ...`` does, once) sets the package
-# attribute ``jaxrt.render`` to the module; binding the function here, after that import, makes
-# ``jaxrt.render`` the function for good (``sys.modules["jaxrt.render"]`` stays the module).
-from jaxrt.render import render  # noqa: E402, F401
 
+
+class _Package(types.ModuleType):
+    """This package's module type. ``render`` is both a submodule and a function: when the
+    submodule loads, the import system sets the package attribute ``jaxrt.render`` to the
+    module, which made ``jaxrt.render`` a function once (through ``__getattr__``) and a
+    module from then on. The function is kept instead (``sys.modules["jaxrt.render"]`` and
+    ``from jaxrt.render import ...`` still give the module)."""
+
+    def __setattr__(self, name, value):
+        if name == "render" and isinstance(value, types.ModuleType):
+            value = value.render
+        super().__setattr__(name, value)
+
+
+sys.modules[__name__].__class__ = _Package
