@@ -31,11 +31,17 @@ from typing import BinaryIO
 import numpy as np
 import OpenEXR
 
-__all__ = ["FileFormatError", "read_exr", "read_png", "srgb_oetf", "write_exr", "write_png"]
+__all__ = ["FileFormatError", "read_exr", "read_exr_attributes", "read_png", "srgb_oetf",
+           "write_exr", "write_png"]
 
 _RGB = ("R", "G", "B")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 _TONEMAPS = ("srgb", "clamp", "reinhard")
+# header attributes every EXR file has (OpenEXR 3: ImfHeader.h), not user attributes
+_STANDARD_ATTRIBUTES = frozenset({
+    "channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
+    "screenWindowCenter", "screenWindowWidth", "type", "tiles", "name", "version",
+    "chunkCount", "view"})
 
 
 class FileFormatError(ValueError):
@@ -103,6 +109,7 @@ def write_exr(
     path: str | os.PathLike,
     image,
     extra_channels: Mapping[str, object] | None = None,
+    attributes: Mapping[str, int | float | str] | None = None,
 ) -> None:
     """Write a linear RGB image, and optional extra channels, as a float32 OpenEXR file, atomically.
 
@@ -115,9 +122,11 @@ def write_exr(
         stored as the layer ``name.R``, ``name.G``, ``name.B`` (the EXR layer convention, e.g.
         ``{"stderr": err}``). Names must be non-empty, must not collide with each other or with
         ``R``, ``G``, ``B``.
+      attributes: extra header attributes (name → int, float or str), e.g. ``{"spp": 64}``;
+        read back with :func:`read_exr_attributes`. Names must not be standard EXR attributes.
 
     Raises:
-      ValueError: wrong shapes, bad or colliding channel names.
+      ValueError: wrong shapes, bad or colliding channel names, bad attributes.
 
     ZIP compression (lossless). Reference: OpenEXR 3 Python API, ``OpenEXR.File(header, channels)``.
     """
@@ -144,6 +153,14 @@ def write_exr(
                 raise ValueError(f"extra channel {full_name!r} collides with another channel")
             channels[full_name] = np.ascontiguousarray(plane, dtype=np.float32)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    for name, value in (attributes or {}).items():
+        if not isinstance(name, str) or not name or name in _STANDARD_ATTRIBUTES:
+            raise ValueError(f"EXR attribute name must be a non-standard name, got {name!r}")
+        if isinstance(value, bool) or not isinstance(value, int | float | str | np.integer
+                                                         | np.floating):
+            raise ValueError(f"EXR attribute {name!r} must be an int, float or str, got "
+                             f"{type(value).__name__}")
+        header[name] = value.item() if isinstance(value, np.generic) else value
     exr = _exr_file(header, channels)
     _atomic_write(path, exr.write)
 
@@ -163,13 +180,11 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
         or subsampled channels (message names the file and the problem).
     """
     path = os.fspath(path)
-    if not os.path.isfile(path):
-        raise FileNotFoundError(f"{path}: no such EXR file")
+    exr = _open_exr(path)
     try:
-        exr = OpenEXR.File(path, separate_channels=True)
         raw = {name: channel.pixels for name, channel in exr.channels().items()}
     except Exception as err:  # OpenEXR raises RuntimeError or ValueError on bad bytes
-        raise FileFormatError(f"{path}: not a readable OpenEXR file ({err})") from err
+        raise FileFormatError(f"{path}: truncated or corrupt OpenEXR file ({err})") from err
     missing = [c for c in _RGB if c not in raw]
     if missing:
         raise FileFormatError(
@@ -191,6 +206,34 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
             extra[layer] = np.stack([planes.pop(f"{layer}.{c}") for c in _RGB], axis=-1)
     extra.update(planes)
     return image, extra
+
+
+def _open_exr(path: str) -> OpenEXR.File:
+    """Open an EXR file (pixels are read by the caller), with errors that say what is wrong.
+
+    OpenEXR reports a file it cannot read as "Unable to open ... for read", which reads like
+    a missing file: check the magic number first, then call anything else truncated or corrupt.
+    """
+    if not os.path.isfile(path):
+        raise FileNotFoundError(f"{path}: no such EXR file")
+    with open(path, "rb") as f:
+        magic = f.read(4)
+    if magic != b"\x76\x2f\x31\x01":
+        raise FileFormatError(f"{path}: not an OpenEXR file (bad magic number)")
+    try:
+        return OpenEXR.File(path, separate_channels=True)
+    except Exception as err:  # OpenEXR raises RuntimeError or ValueError on bad bytes
+        size = os.path.getsize(path)
+        raise FileFormatError(f"{path}: truncated or corrupt OpenEXR file ({size} bytes; "
+                              f"OpenEXR: {err})") from err
+
+
+def read_exr_attributes(path: str | os.PathLike) -> dict:
+    """The non-standard header attributes of an EXR file (e.g. ``{"spp": 64}`` written by
+    ``jaxrt render``), as Python ints, floats and strings."""
+    path = os.fspath(path)
+    header = _open_exr(path).header()
+    return {k: v for k, v in header.items() if k not in _STANDARD_ATTRIBUTES}
 
 
 # ---------------------------------------------------------------------------------------------

@@ -345,3 +345,29 @@ def test_atomic_write_replaces_and_keeps_mode(tmp_path):
     os.chmod(path, 0o640)
     io._atomic_write(path, lambda f: f.write(b"two"))
     assert path.read_bytes() == b"two" and os.stat(path).st_mode & 0o777 == 0o640
+
+
+@pytest.mark.parametrize("kind", ["trunc-0.1", "trunc-0.5", "trunc-0.9"])
+def test_exr_truncated_says_truncated_not_unable_to_open(tmp_path, kind):
+    """A cut-off EXR read like a missing file ("Unable to open ... for read")."""
+    path = _malformed(tmp_path, kind)
+    with pytest.raises(io.FileFormatError, match=r"truncated or corrupt OpenEXR file"):
+        io.read_exr(path)
+
+
+@pytest.mark.parametrize("kind", ["text", "random", "empty"])
+def test_exr_non_exr_says_not_an_exr(tmp_path, kind):
+    with pytest.raises(io.FileFormatError, match=r"not an OpenEXR file \(bad magic number\)"):
+        io.read_exr(_malformed(tmp_path, kind))
+
+
+def test_exr_attributes_round_trip(tmp_path):
+    path = tmp_path / "a.exr"
+    io.write_exr(path, _image(4, 5), attributes={"spp": 12, "jaxrt.estimator": "mis",
+                                                 "scale": np.float32(1.5)})
+    assert io.read_exr_attributes(path) == {"spp": 12, "jaxrt.estimator": "mis", "scale": 1.5}
+    assert io.read_exr_attributes(tmp_path / "a.exr")["spp"] == 12
+    for bad in ({"compression": 1}, {"spp": [1, 2]}, {"": 1}, {"ok": True}):
+        with pytest.raises(ValueError, match="attribute"):
+            io.write_exr(tmp_path / "b.exr", _image(4, 5), attributes=bad)
+    assert not (tmp_path / "b.exr").exists()
