@@ -91,16 +91,16 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
     """
     import jax
 
-    from jaxrt.estimators import make_estimator
+    from jaxrt.estimators import make_estimator, prepare_scene
     from jaxrt.passes import LANES, RenderPass
     from jaxrt.render import _mean_and_error
-    from jaxrt.scene import with_triangle_sampling
+
 
     levels = sorted(int(n) for n in levels)
     if any(n % pass_spp for n in levels):
         raise ValueError(f"every level must be a multiple of pass_spp={pass_spp}: {levels}")
     est = make_estimator(estimator, **params)
-    scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+    scene = prepare_scene(scene, est)
     tile_size = LANES * math.ceil(tile_size / LANES)
     # spp only shapes the stratified stream: fixing it elsewhere lets levels share a program
     spp_total = levels[-1] if sampler == "stratified" else 1
@@ -306,13 +306,13 @@ def profile_jaxrt(size: int = 256, repeats: int = 3) -> dict:
 
     from jaxrt import lights as lt
     from jaxrt.camera import generate_ray
-    from jaxrt.estimators import camera_sample, make_estimator
-    from jaxrt.scene import intersect, unoccluded, with_triangle_sampling
+    from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
+    from jaxrt.scene import intersect, unoccluded
     from jaxrt.scenes import cornell_box
 
     est = make_estimator("mis")
     scene = cornell_box(size, size)
-    scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+    scene = prepare_scene(scene, est)
     n = size * size
     pix = jnp.arange(n, dtype=jnp.int32)
     xy = jnp.stack([pix % size, pix // size], -1)

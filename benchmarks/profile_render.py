@@ -48,7 +48,6 @@ import numpy as np
 
 import jaxrt.estimators as est_mod
 import jaxrt.passes as ps
-import jaxrt.render as rd
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.camera import generate_ray
@@ -59,13 +58,15 @@ from jaxrt.estimators import (
     _visible,
     camera_sample,
     make_estimator,
+    prepare_scene,
 )
-from jaxrt.scene import intersect, material_at, shading_normal, with_triangle_sampling
+from jaxrt.render import render
+from jaxrt.scene import intersect, material_at, shading_normal
 from jaxrt.scenes import cornell_box
 from jaxrt.vecmath import to_local, to_world
 
 SIZE = 256
-BATCH_SIZE = inspect.signature(rd.render).parameters["batch_size"].default  # as render
+BATCH_SIZE = inspect.signature(render).parameters["batch_size"].default  # as render
 LEVELS = ("nothing", "sample stream", "camera ray", "closest hit (camera ray)", "light sample",
           "shadow ray (any hit)", "BSDF eval + pdf (light dir)", "BSDF sample",
           "BSDF ray: closest hit + emitted", "pdf_li (BSDF ray)", "full render (+ MIS weights)")
@@ -254,7 +255,7 @@ def main() -> None:
     a = parser.parse_args()
     est = make_estimator("mis")
     scene = cornell_box(SIZE, SIZE)
-    scene = scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+    scene = prepare_scene(scene, est)
     n = SIZE * SIZE
     print(f"jax {jax.__version__}, {SIZE}x{SIZE} cornell_box, mis, 1 spp, "
           f"{256 * BATCH_SIZE} lanes per step; "

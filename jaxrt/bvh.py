@@ -43,11 +43,11 @@ from jaxrt.bvh_build import FlatBVH, build_flat_bvh
 from jaxrt.intersect import (
     Hit,
     RayFrame,
-    barycentrics_frame,
     gamma,
     intersect_triangle_t,
     ray_frame,
     triangle_set,
+    winner_hit,
 )
 
 
@@ -269,12 +269,8 @@ def _to_hit(bvh: BVH, frame: RayFrame, t, pos) -> Hit:
     found = pos >= 0
     p = jnp.maximum(pos, 0)
     v = [a[p] for a in bvh.tri]
-    # Barycentrics of the winner only, once per ray (as TriangleSet does).
-    b1, b2 = barycentrics_frame(frame, v[0:3], v[3:6], v[6:9])
-    zero = jnp.zeros_like(t)
-    return Hit(jnp.where(found, t, jnp.inf), jnp.where(found, bvh.prim[p], -1).astype(jnp.int32),
-               jnp.where(found, b1, zero), jnp.where(found, b2, zero),
-               jnp.where(found, bvh.ng[p], jnp.zeros_like(bvh.ng[p])))
+    # barycentrics and hit point of the winner only, once per ray (as TriangleSet does)
+    return winner_hit(frame, t, jnp.where(found, bvh.prim[p], -1), v, bvh.ng[p])
 
 
 def _traverse_one(bvh: BVH, origin, direction, t_max, stop_at_first: bool) -> _Cursor:

@@ -85,6 +85,8 @@ class Hit(NamedTuple):
             0 on a miss.
         ng: (3,) unit geometric normal ``normalize((v1 − v0) × (v2 − v0))`` (not flipped
             towards the ray); zero on a miss.
+        p: (3,) hit point from the barycentrics, ``p_error`` (3,) a bound on its rounding
+            error (:func:`surface_point`); zero on a miss.
     """
 
     t: Array
@@ -92,6 +94,55 @@ class Hit(NamedTuple):
     b1: Array
     b2: Array
     ng: Array
+    p: Array
+    p_error: Array
+
+
+def surface_point(v0: tuple, v1: tuple, v2: tuple, b1: Array,
+                  b2: Array) -> tuple[tuple, tuple]:
+    """Point of a triangle from barycentrics, with a conservative bound on its rounding error.
+
+    ``p = b0 v0 + b1 v1 + b2 v2`` with ``b0 = 1 − b1 − b2``, and per component
+    ``p_error = γ₇ (|b0 v0| + |b1 v1| + |b2 v2|) + γ₂ (1 + |b1| + |b2|) |v0|``: pbrt's bound
+    (pbrt-v4 §6.8.5) plus the rounding of ``b0``, which pbrt takes from the intersection test.
+
+    Args:
+        v0, v1, v2: the vertices as 3-tuples of scalars (components, so that under ``vmap``
+            every operand is one contiguous vector and no (N, 3) array is formed).
+        b1, b2: () barycentrics of ``v1`` and ``v2``.
+    Returns:
+        ``(p, p_error)``, each a 3-tuple of scalars; ``p_error ≥ 0`` bounds ``|p − p_exact|``
+        componentwise.
+    """
+    b0 = 1 - b1 - b2
+    dtype = b0.dtype
+    g7, g2 = gamma(7, dtype), gamma(2, dtype)
+    b0_scale = g2 * (1 + jnp.abs(b1) + jnp.abs(b2))
+    p, err = [], []
+    for k in range(3):
+        a, b, c = b0 * v0[k], b1 * v1[k], b2 * v2[k]
+        p.append(a + b + c)
+        err.append(g7 * (jnp.abs(a) + jnp.abs(b) + jnp.abs(c)) + b0_scale * jnp.abs(v0[k]))
+    return tuple(p), tuple(err)
+
+
+def winner_hit(frame: RayFrame, t: Array, prim: Array, v: list, ng: Array) -> Hit:
+    """The :class:`Hit` of the closest triangle, from its 9 vertex components ``v`` and normal.
+
+    ``prim`` < 0 is a miss. Barycentrics and the hit point are computed for the winner only,
+    once per ray, from values the loop's caller has already gathered.
+    """
+    hit = prim >= 0
+    v0, v1, v2 = tuple(v[0:3]), tuple(v[3:6]), tuple(v[6:9])
+    b1, b2 = barycentrics_frame(frame, v0, v1, v2)
+    zero = jnp.zeros_like(t)
+    b1, b2 = jnp.where(hit, b1, zero), jnp.where(hit, b2, zero)
+    p, p_error = surface_point(v0, v1, v2, b1, b2)
+    zero3 = jnp.zeros(3, t.dtype)
+    return Hit(t=jnp.where(hit, t, jnp.asarray(jnp.inf, t.dtype)),
+               prim=jnp.where(hit, prim, -1).astype(jnp.int32), b1=b1, b2=b2,
+               ng=jnp.where(hit, ng, zero3), p=jnp.where(hit, jnp.stack(p), zero3),
+               p_error=jnp.where(hit, jnp.stack(p_error), zero3))
 
 
 class RayFrame(NamedTuple):
@@ -388,21 +439,12 @@ class TriangleSet(NamedTuple):
 
 def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
     """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
-    hit = prim >= 0
     k = jnp.maximum(prim, 0)
     # one gather per scalar component from a (12, F) table: under vmap each is a contiguous
     # (N,) vector, where gathering (3, 3) rows made this step cost more than the whole loop
     table = jnp.concatenate([geometry.vertices.reshape(-1, 9), geometry.ng], axis=1).T
     c = [table[j][k].astype(t.dtype) for j in range(12)]
-    # vertices as tuples of scalars (the kernel only indexes them): no (N, 3) intermediate
-    v0, v1, v2 = tuple(c[0:3]), tuple(c[3:6]), tuple(c[6:9])
-    # barycentrics of the winner only, once per ray instead of once per triangle
-    b1, b2 = barycentrics_frame(frame, v0, v1, v2)
-    zero = jnp.zeros_like(t)
-    return Hit(t=jnp.where(hit, t, jnp.asarray(jnp.inf, t.dtype)),
-               prim=jnp.where(hit, prim, -1).astype(jnp.int32),
-               b1=jnp.where(hit, b1, zero), b2=jnp.where(hit, b2, zero),
-               ng=jnp.where(hit, jnp.stack(c[9:12]), jnp.zeros(3, t.dtype)))
+    return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]))
 
 
 def triangle_set(triangles) -> TriangleSet:

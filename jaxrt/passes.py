@@ -22,7 +22,7 @@ import numpy as np
 from jax import lax
 
 from jaxrt.bvh import BVH
-from jaxrt.estimators import Estimator, camera_sample
+from jaxrt.estimators import COMPILER_OPTIONS, Estimator, camera_sample
 from jaxrt.scene import Scene
 
 #: Tiles are rounded up to a multiple of this many pixels (the widest CPU vector of float32).
@@ -37,18 +37,32 @@ class Sums(NamedTuple):
 
 def pixel_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, pixel,
                 start, count: int) -> Sums:
-    """Sums of ``count`` samples ``start … start+count−1`` of one pixel (a fori_loop)."""
+    """Sums of ``count`` samples ``start … start+count−1`` of one pixel (a fori_loop).
+
+    Software-pipelined: iteration k computes sample k and folds sample k − 1, carried from
+    the previous iteration. The sample's only consumer is then the loop carry, so XLA:CPU
+    materialises it once; folded directly, its last stage (the MIS combination) was fused
+    into each of the Σx, Σx² and non-finite kernels and computed three times.
+    """
     dtype = scene.triangles.dtype
 
-    def body(k, acc):
+    def fold(acc, value):
         s1, s2, bad = acc
-        value = camera_sample(scene, est, pixel, start + k, seed, sampler, spp_total)
-        ok = jnp.all(jnp.isfinite(value))
+        # per component, not jnp.all over the (3,) axis: under vmap that is a reduction over
+        # a minor axis of 3, a kernel of its own in every sample step
+        ok = jnp.isfinite(value[0]) & jnp.isfinite(value[1]) & jnp.isfinite(value[2])
         value = jnp.where(ok, value, 0)
         return s1 + value, s2 + value * value, bad + (~ok).astype(jnp.int32)
 
+    def body(k, carry):
+        acc, previous = carry
+        value = camera_sample(scene, est, pixel, start + k, seed, sampler, spp_total)
+        return fold(acc, previous), value
+
     zero = jnp.zeros(3, dtype)
-    return Sums(*lax.fori_loop(0, count, body, (zero, zero, jnp.int32(0))))
+    # the first fold adds an exact zero: the sums are those of the unpipelined loop, bit for bit
+    acc, last = lax.fori_loop(0, count, body, ((zero, zero, jnp.int32(0)), zero))
+    return Sums(*fold(acc, last))
 
 
 @partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
@@ -105,7 +119,7 @@ class RenderPass:
         t0 = time.perf_counter()
         self.compiled[count] = [
             render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, count=count,
-                                **self.static).compile()
+                                **self.static).compile(COMPILER_OPTIONS)
             for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
                                     strict=True)]
         return time.perf_counter() - t0

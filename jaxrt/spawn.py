@@ -17,7 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxrt.intersect import gamma
+from jaxrt.intersect import gamma, surface_point
 from jaxrt.vecmath import dot
 
 #: Relative margin by which a shadow ray stops short of its (already offset) target:
@@ -38,12 +38,8 @@ def hit_point(v0: Array, v1: Array, v2: Array, b1: Array, b2: Array) -> tuple[Ar
     Returns:
         ``(p, p_error)``, both (3,); ``p_error ≥ 0`` bounds ``|p − p_exact|`` componentwise.
     """
-    b0 = 1 - b1 - b2
-    p = b0 * v0 + b1 * v1 + b2 * v2
-    abs_sum = jnp.abs(b0 * v0) + jnp.abs(b1 * v1) + jnp.abs(b2 * v2)
-    dtype = p.dtype
-    b0_err = gamma(2, dtype) * (1 + jnp.abs(b1) + jnp.abs(b2)) * jnp.abs(v0)
-    return p, gamma(7, dtype) * abs_sum + b0_err
+    p, err = surface_point(tuple(v0), tuple(v1), tuple(v2), b1, b2)
+    return jnp.stack(p), jnp.stack(err)
 
 
 def default_point_error(p: Array) -> Array:

@@ -124,9 +124,15 @@ QUICK = {("mis", "rect_parallel"), ("cosine_hemisphere", "rect_tilted"),
          ("uniform_hemisphere", "rect_horizon_clipped"), ("mis", "point_grazing_89deg")}
 
 
+# MIS estimators sample triangle lights as the scene says: both measures are tested
+SCENE_MODE_ESTIMATORS = ("mis", "mis_one_sample")
+QUICK_SOLID_ANGLE = {("mis", "rect_tilted"), ("mis_one_sample", "triangle_1e-4_away")}
+
+
 def _cases():
     out = []
     for est in ESTIMATORS:
+        modes = ("area", "solid_angle") if est in SCENE_MODE_ESTIMATORS else ("area",)
         for case in CASES:
             if case in DELTA and est in DIRECTION_SAMPLERS:
                 continue  # tested by test_delta_lights_invisible
@@ -134,8 +140,11 @@ def _cases():
                 continue  # see the module docstring
             if case in NEAR and est == "light_area":
                 continue  # test_area_sampling_misses_the_near_peak
-            marks = () if (est, case) in QUICK else (pytest.mark.slow,)
-            out.append(pytest.param(est, case, marks=marks, id=f"{est}-{case}"))
+            for mode in modes:
+                quick = (est, case) in (QUICK if mode == "area" else QUICK_SOLID_ANGLE)
+                marks = () if quick else (pytest.mark.slow,)
+                name = f"{est}-{case}" + ("" if mode == "area" else "-solid_angle")
+                out.append(pytest.param(est, case, mode, marks=marks, id=name))
     return out
 
 
@@ -148,9 +157,10 @@ def _case(name):
     return _built[name]
 
 
-@pytest.mark.parametrize("est, case", _cases())
-def test_estimator_matches_analytic(est, case):
+@pytest.mark.parametrize("est, case, triangle_sampling", _cases())
+def test_estimator_matches_analytic(est, case, triangle_sampling):
     scene, n, exact = _case(case)
+    scene = scene.replace(lights=sc.with_triangle_sampling(scene.lights, triangle_sampling))
     r = estimate_at(scene, est, np.zeros(3), n, _wo(n), num_samples=N, seed=7)
     mean, err = np.asarray(r.mean, np.float64), np.asarray(r.stderr, np.float64)
     assert np.all(np.isfinite(mean)) and np.all(np.isfinite(err))

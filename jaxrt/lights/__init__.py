@@ -11,7 +11,7 @@ Build on the host, then use inside ``jit``/``vmap``::
     lights = light_table([point_light([0, 0, 2], [10, 10, 10]),
                           triangle_lights(tris, radiance, prims),
                           constant_environment([0.1, 0.1, 0.1])],
-                         triangle_sampling="solid_angle", selection="power")
+                         triangle_sampling="area", selection="power")
     s = jax.vmap(sample_li, (None, 0, 0, 0))(lights, p, n, u)     # u: (B, 3)
     pdf = pdf_li(lights, p, wi, light, p_light)                     # for MIS
 

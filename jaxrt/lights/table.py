@@ -50,7 +50,7 @@ class LightsStructure:
 
     counts: tuple[int, ...]  # one per kind, in KINDS order
     environment: Literal["none", "constant", "map"] = "none"
-    triangle_sampling: Literal["area", "solid_angle"] = "solid_angle"
+    triangle_sampling: Literal["area", "solid_angle"] = "area"
     selection: Literal["uniform", "power"] = "power"
 
     def count(self, kind: str) -> int:
@@ -127,7 +127,7 @@ def light_powers(lights: Lights, scene_radius: float = 1.0) -> np.ndarray:
     return np.concatenate(parts)
 
 
-def light_table(lights, *, triangle_sampling: str = "solid_angle", selection: str = "power",
+def light_table(lights, *, triangle_sampling: str = "area", selection: str = "power",
                 scene_radius: float = 1.0) -> Lights:
     """Collect light records (:func:`point_light`, :func:`triangle_lights`, ...) into ``Lights``.
 
