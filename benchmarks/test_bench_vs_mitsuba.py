@@ -112,3 +112,32 @@ def test_target_time_to_equal_error(comparison):
     # issue 6: time to equal error ≤ 1.0 × Mitsuba's, with the better of jaxrt's samplers
     for e in comparison["ratios"]["time_to_rmse"].values():
         assert min(e["ratio_independent"], e["ratio_sobol"]) <= 1.0
+
+
+def test_bench_paired_per_cpu_second(benchmark):
+    """jaxrt ÷ Mitsuba per CPU-second and per wall second, interleaved rounds in one process
+    (issue 10), with jaxrt's compile time, kernel count and first frame."""
+    import paired_vs_mitsuba as pvm
+
+    try:
+        mc.import_mitsuba(mc.DEFAULT_VARIANT)
+    except ImportError as e:
+        pytest.skip(f"Mitsuba's {mc.DEFAULT_VARIANT} variant is unusable: {e}")
+    res = pvm.paired(spp=32, rounds=4)
+    total, compile_s = pvm.first_frame_seconds()
+    benchmark.extra_info.update({
+        "ratio_per_cpu_s": res["ratio_per_cpu_s"], "ratio_per_wall_s": res["ratio_per_wall_s"],
+        "jaxrt_cores": res["jaxrt"]["cores"], "mitsuba_cores": res["mitsuba"]["cores"],
+        "jaxrt_compile_s": res["jaxrt_compile_s"], "first_frame_s": total,
+        "first_frame_compile_s": compile_s, **res["jaxrt_kernels"]})
+    benchmark.pedantic(lambda: None, rounds=1, iterations=1)  # figures come from paired()
+    print(f"\n  first frame {total:.2f} s (compile {compile_s:.2f} s)")
+    assert res["ratio_per_cpu_s"] > 0 and np.isfinite(res["ratio_per_cpu_s"])
+
+
+@pytest.mark.xfail(reason="issue 10 target (>= 0.45x Mitsuba per CPU-second) not reached yet",
+                   strict=False)
+def test_target_per_cpu_second():
+    import paired_vs_mitsuba as pvm
+
+    assert pvm.paired(spp=32, rounds=4)["ratio_per_cpu_s"] >= 0.45
