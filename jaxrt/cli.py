@@ -1,116 +1,346 @@
-"""The ``jaxrt`` command.
+"""The ``jaxrt`` command: render a scene to an HDR EXR (and a PNG preview), list the built-in
+scenes, draw the sampling-warp gallery.
 
-    jaxrt render [SCENE-FILE | built-in name] --estimator mis --spp 64 --seed 0 \\
-                 -o out.exr --png out.png [--time-budget S] [--target-error E]
-    jaxrt scenes                      # list the built-in scenes
-    jaxrt gallery -o warps.png        # every sampling warp: points, histogram, pdf
-
-With no scene, ``render`` renders the built-in Cornell box.
+Everything that can be checked without JAX (arguments, output paths) is checked first, so a
+mistyped path fails in a fraction of a second instead of after the render. JAX's persistent
+compilation cache is switched on here, for the command only (``--no-compile-cache`` or
+``JAXRT_NO_COMPILE_CACHE=1`` turn it off); importing the library never touches it.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
+import threading
 from pathlib import Path
+
+#: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
+#: argument checks need no JAX (tests/test_cli_ux.py checks they equal the library's).
+ESTIMATOR_NAMES = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
+                   "light_solid_angle", "mis", "mis_one_sample")
+SAMPLER_NAMES = ("independent", "stratified", "sobol")
+MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
+DEFAULT_SPP = 64
+EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
+
+EXAMPLES = """\
+examples:
+  jaxrt scenes                                          list the built-in scenes
+  jaxrt render cornell_box --spp 256 -o box.exr --png box.png
+  jaxrt render veach_mis --estimator light_area --width 512 --height 256
+  jaxrt render my_scene.json --time-budget 30 --sampler sobol -o out.exr
+  jaxrt render my_scene.json --target-error 0.01 -o out.exr   # until 1 % relative error
+  jaxrt gallery -o warps.png                            every warp: samples against its pdf
+
+Ctrl-C stops a render after the pass running (about a second) and writes the image so far
+(its spp is in the EXR header); exit status 130. A scene file is JSON: see README.md,
+"Scenes", or the docstring of jaxrt/scene_file.py.
+"""
+
+
+class _Formatter(argparse.RawDescriptionHelpFormatter):
+    """Every option's default in its help (unless the help states it, or there is none to
+    state: a flag, an unset option), examples kept as written."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        if ("default" in text or action.default in (None, False, argparse.SUPPRESS)
+                or not action.option_strings):
+            return text
+        return text + " (default: %(default)s)"
+
+
+class CLIError(Exception):
+    """A usage error found by the command: printed as one line, exit status 2."""
+
+
+def _positive(kind):
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+        return value
+
+    parse.__name__ = f"positive {kind.__name__}"
+    return parse
+
+
+def _check_output(path: str, suffix: str, option: str, force: bool) -> Path:
+    """Fail now, not after the render, if ``path`` cannot take the file ``option`` writes."""
+    p = Path(path)
+    if p.suffix.lower() != suffix:
+        raise CLIError(f"{path}: {option} writes {suffix[1:].upper()}, so its file name must "
+                       f"end in {suffix} (got {p.suffix or 'no extension'})")
+    if p.is_dir():
+        raise CLIError(f"{path}: is a directory; give a file name for {option}")
+    parent = p.parent
+    if not parent.exists():
+        raise CLIError(f"{path}: directory {str(parent)!r} does not exist")
+    if not parent.is_dir():
+        raise CLIError(f"{path}: {str(parent)!r} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise CLIError(f"{path}: directory {str(parent)!r} is not writable")
+    if p.exists() and not force:
+        # like rm and cp -i: a write-protected file is replaced only when asked (even as root)
+        if not p.stat().st_mode & 0o222 or not os.access(p, os.W_OK):
+            raise CLIError(f"{path}: exists and is read-only; use --force to replace it")
+    return p
+
+
+#: Programs read from the persistent compilation cache in this process, and the compile
+#: seconds they saved (from JAX's monitoring events).
+CACHE_HITS = {"programs": 0, "saved": 0.0}
+
+
+def _count_cache_hit(event: str, seconds: float, **kwargs) -> None:
+    if event == "/jax/compilation_cache/compile_time_saved_sec":
+        CACHE_HITS["programs"] += 1
+        CACHE_HITS["saved"] += seconds
+
+
+def _enable_compile_cache(args) -> str | None:
+    """JAX's persistent compilation cache in the user's cache directory, unless disabled."""
+    if getattr(args, "no_compile_cache", False) or os.environ.get("JAXRT_NO_COMPILE_CACHE",
+                                                                  "") not in ("", "0"):
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    path = os.path.join(base, "jaxrt", "jax")
+    import jax
+
+    jax.config.update("jax_compilation_cache_dir", path)
+    # render programs compile in seconds; the default threshold (1 s) would skip small images
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+    jax.monitoring.register_event_duration_secs_listener(_count_cache_hit)
+    return path
+
+
+def _load(args):
+    """The scene named on the command line (a built-in name or a scene file)."""
+    from jaxrt import scenes
+
+    size = {k: getattr(args, k) for k in ("width", "height") if getattr(args, k) is not None}
+    if args.scene is None or args.scene in scenes.BUILTIN:
+        return scenes.by_name(args.scene or "cornell_box", accel=args.accel, **size)
+    path = Path(args.scene)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        raise CLIError(
+            f"{path}: a mesh file, not a scene: a scene file (.json) places meshes, lights and "
+            f"a camera, e.g. {{\"camera\": {{\"eye\": [0, 1, 4], \"target\": [0, 0, 0]}}, "
+            f"\"meshes\": [{{\"file\": \"{path.name}\"}}], \"lights\": [{{\"type\": \"point\", "
+            f"\"position\": [0, 2, 0], \"intensity\": 10}}]}} (README.md, \"Scenes\")")
+    if not path.exists():
+        raise CLIError(f"no such scene file or built-in scene: {args.scene!r} (built-ins: "
+                       f"{', '.join(sorted(scenes.BUILTIN))})")
+    from jaxrt.scene_file import load_scene
+
+    return load_scene(path, accel=args.accel, **size)
+
+
+def _write(args, result, interrupted: bool = False) -> None:
+    from jaxrt import io
+
+    attributes = {"spp": int(result.spp), "jaxrt.stopped_by": result.stopped_by,
+                  "jaxrt.estimator": args.estimator, "jaxrt.sampler": args.sampler,
+                  "jaxrt.seed": int(args.seed)}
+    io.write_exr(args.output, result.image, extra_channels={"stderr": result.stderr},
+                 attributes=attributes)
+    if args.png:
+        io.write_png(args.png, result.image, exposure=args.exposure)
+    if not interrupted:
+        print(f"wrote {args.output}" + (f" and {args.png}" if args.png else ""))
 
 
 def _render(args) -> int:
-    from jaxrt import io, scenes
-    from jaxrt.render import render
+    _check_output(args.output, ".exr", "-o/--output", args.force)
+    if args.png:
+        _check_output(args.png, ".png", "--png", args.force)
+    adaptive = args.time_budget is not None or args.target_error is not None
+    spp = args.spp if args.spp is not None else (None if adaptive else DEFAULT_SPP)
+    _enable_compile_cache(args)
+    scene = _load(args)
+    print(scene.summary(), flush=True)
+    params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic")
+              if getattr(args, k) is not None}
+    return _render_interruptibly(args, scene, spp, params)
 
-    size = {}
-    if args.width:
-        size["width"] = args.width
-    if args.height:
-        size["height"] = args.height
-    if args.scene is None or args.scene in scenes.BUILTIN:
-        name = args.scene or "cornell_box"
-        scene = scenes.by_name(name, accel=args.accel, **size)
-    else:
-        from jaxrt.scene_file import load_scene
 
-        path = Path(args.scene)
-        if not path.exists():
-            print(f"jaxrt: no such scene file or built-in scene: {args.scene!r} (built-ins: "
-                  f"{', '.join(sorted(scenes.BUILTIN))})", file=sys.stderr)
-            return 2
-        scene = load_scene(path, accel=args.accel, **size)
-    print(scene.summary())
-    params = {}
-    if args.light_samples is not None:
-        params["light_samples"] = args.light_samples
-    if args.bsdf_samples is not None:
-        params["bsdf_samples"] = args.bsdf_samples
-    if args.heuristic is not None:
-        params["heuristic"] = args.heuristic
-    result = render(scene, args.estimator, spp=args.spp, seed=args.seed, sampler=args.sampler,
-                    time_budget=args.time_budget, target_error=args.target_error,
-                    progress=not args.quiet, **params)
+def _render_interruptibly(args, scene, spp, params) -> int:
+    """Render in a worker thread so that Ctrl-C reaches this (main) thread at once: the first
+    stops the render after its pass and writes what it has; during compilation (nothing to
+    save) or a second time, it exits at once."""
+    from jaxrt.render import RenderInterrupted, render
+
+    stop, finished = threading.Event(), threading.Event()
+    passes_done = []
+    box: dict = {}
+
+    def work():
+        try:
+            box["result"] = render(scene, args.estimator, spp=spp, seed=args.seed,
+                                   sampler=args.sampler, time_budget=args.time_budget,
+                                   target_error=args.target_error, progress=not args.quiet,
+                                   stop=stop, on_pass=passes_done.append, **params)
+        except BaseException as e:  # handed to the main thread
+            box["error"] = e
+        finally:
+            finished.set()
+
+    # a daemon thread: _quit_now must not wait for a compilation it cannot interrupt
+    threading.Thread(target=work, name="jaxrt-render", daemon=True).start()
+    # (Event.wait, not Thread.join: a KeyboardInterrupt inside join can leave the thread
+    # looking finished while it runs)
+    try:
+        while not finished.wait(0.1):
+            pass
+    except KeyboardInterrupt:
+        if not passes_done:
+            _quit_now("jaxrt: interrupted before the first pass finished; nothing written")
+        stop.set()
+        try:
+            while not finished.wait(0.1):
+                pass
+        except KeyboardInterrupt:
+            _quit_now("jaxrt: interrupted twice; nothing written")
+    if "error" in box:
+        e = box["error"]
+        if isinstance(e, RenderInterrupted):
+            if e.result is None:
+                print("jaxrt: interrupted before the first pass; nothing written",
+                      file=sys.stderr)
+                return EXIT_INTERRUPTED
+            _write(args, e.result, interrupted=True)
+            print(f"jaxrt: interrupted: wrote {e.result.spp} spp to {args.output}"
+                  + (f" and {args.png}" if args.png else ""), file=sys.stderr)
+            return EXIT_INTERRUPTED
+        raise e
+    result = box["result"]
     t = result.timings
-    print(f"{result.spp} spp in {t['render']:.2f} s (+{t['compile']:.2f} s compile): "
+    cached = (f", {CACHE_HITS['programs']} program(s) from the compile cache saved "
+              f"{CACHE_HITS['saved']:.2f} s" if CACHE_HITS["programs"] else "")
+    print(f"{result.spp} spp in {t['render']:.2f} s (+{t['compile']:.2f} s compile{cached}): "
           f"{t['samples_per_s'] / 1e6:.2f} M samples/s, mean relative error "
           f"{result.relative_error:.4f}, stopped by {result.stopped_by}"
           + (f", {result.nonfinite} non-finite samples dropped" if result.nonfinite else ""))
-    io.write_exr(args.output, result.image, extra_channels={"stderr": result.stderr})
-    print(f"wrote {args.output}")
-    if args.png:
-        io.write_png(args.png, result.image, exposure=args.exposure)
-        print(f"wrote {args.png}")
+    _write(args, result)
     return 0
+
+
+def _quit_now(message: str):
+    """Exit at once, without waiting for the worker thread (XLA cannot be interrupted)."""
+    print("\n" + message, file=sys.stderr)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(EXIT_INTERRUPTED)
+
+
+def plain_text(rst: str) -> str:
+    """A docstring line without reStructuredText markup (``x``, :func:`x`, *x*)."""
+    text = re.sub(r":[a-z]+:`~?([^`]+)`", r"\1", rst)
+    text = re.sub(r"``([^`]+)``", r"\1", text)
+    return re.sub(r"(?<!\w)\*([^*]+)\*(?!\w)", r"\1", text)
 
 
 def _scenes(args) -> int:
     from jaxrt import scenes
 
     for name, fn in sorted(scenes.BUILTIN.items()):
-        print(f"{name:20s} {(fn.__doc__ or '').strip().splitlines()[0]}")
+        doc = (fn.__doc__ or "").strip().split("\n\n")[0]
+        print(f"{name:20s} {plain_text(' '.join(doc.split()))}")
     return 0
 
 
 def _gallery(args) -> int:
+    _check_output(args.output, ".png", "-o/--output", args.force)
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise CLIError("jaxrt gallery draws with matplotlib, which is not installed: "
+                       "pip install 'jaxrt[plot]' (or pip install matplotlib)") from None
+    _enable_compile_cache(args)
     from jaxrt.gallery import make_gallery
 
-    make_gallery(args.output, num_samples=args.samples)
+    make_gallery(args.output, num_samples=args.samples, progress=not args.quiet)
     print(f"wrote {args.output}")
     return 0
 
 
+def _version() -> str:
+    from jaxrt import __version__
+
+    return f"jaxrt {__version__}"
+
+
 def build_parser() -> argparse.ArgumentParser:
-    from jaxrt.estimators import ESTIMATORS
-    from jaxrt.sampler import SAMPLER_KINDS
+    p = argparse.ArgumentParser(
+        prog="jaxrt", formatter_class=_Formatter, epilog=EXAMPLES,
+        description="Monte Carlo direct illumination in JAX: render a built-in scene or a "
+                    "JSON scene file with any estimator of the reflection equation, to an HDR "
+                    "EXR with a per-pixel standard-error layer and an sRGB PNG preview.")
+    p.add_argument("--version", action="version", version=_version())
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = argparse.ArgumentParser(prog="jaxrt", description=__doc__.split("\n\n")[0])
-    sub = p.add_subparsers(dest="command", required=True)
-
-    r = sub.add_parser("render", help="render a scene to an EXR (and a PNG preview)")
+    r = sub.add_parser("render", formatter_class=_Formatter, epilog=EXAMPLES,
+                       help="render a scene to an EXR (and a PNG preview)",
+                       description="Render a scene to an HDR EXR (RGB + a stderr layer) and "
+                                   "optionally an sRGB PNG preview.")
     r.add_argument("scene", nargs="?", default=None,
-                   help="a scene file (.json) or a built-in scene name (default: cornell_box)")
-    r.add_argument("--estimator", default="mis", choices=ESTIMATORS)
-    r.add_argument("--spp", type=int, default=64, help="samples per pixel (maximum)")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--sampler", default="independent", choices=SAMPLER_KINDS)
-    r.add_argument("--light-samples", type=int, default=None, help="MIS light samples")
-    r.add_argument("--bsdf-samples", type=int, default=None, help="MIS BSDF samples")
-    r.add_argument("--heuristic", choices=("balance", "power"), default=None)
-    r.add_argument("--time-budget", type=float, default=None, help="stop after S seconds")
-    r.add_argument("--target-error", type=float, default=None,
-                   help="stop at this mean relative standard error")
-    r.add_argument("--width", type=int, default=None)
-    r.add_argument("--height", type=int, default=None)
-    r.add_argument("--accel", default="auto", choices=("auto", "brute", "bvh"))
+                   help="a scene file (.json) or a built-in scene name (see 'jaxrt scenes'); "
+                        "default: cornell_box")
+    r.add_argument("--estimator", default="mis", choices=ESTIMATOR_NAMES,
+                   help="direct-illumination estimator (README.md, \"Estimators\")")
+    r.add_argument("--spp", type=_positive(int), default=None,
+                   help=f"samples per pixel (default: {DEFAULT_SPP}; no limit with "
+                        "--time-budget or --target-error, where it is a maximum)")
+    r.add_argument("--seed", type=int, default=0, help="random seed (same seed, same image)")
+    r.add_argument("--sampler", default="independent", choices=SAMPLER_NAMES,
+                   help="sample stream (sobol converges fastest on smooth pixels)")
+    r.add_argument("--light-samples", type=_positive(int), default=None,
+                   help="MIS light samples (default: the estimator's, 1)")
+    r.add_argument("--bsdf-samples", type=_positive(int), default=None,
+                   help="MIS BSDF samples (default: the estimator's, 1)")
+    r.add_argument("--heuristic", choices=("balance", "power"), default=None,
+                   help="MIS heuristic (default: the estimator's, power)")
+    r.add_argument("--time-budget", type=_positive(float), default=None, metavar="SECONDS",
+                   help="stop after this many seconds of rendering (compilation excluded)")
+    r.add_argument("--target-error", type=_positive(float), default=None, metavar="E",
+                   help="stop at this mean relative standard error (e.g. 0.01)")
+    r.add_argument("--width", type=_positive(int), default=None,
+                   help="image width in pixels (default: the scene's)")
+    r.add_argument("--height", type=_positive(int), default=None,
+                   help="image height in pixels (default: the scene's)")
+    r.add_argument("--accel", default="auto", choices=("auto", "brute", "bvh"),
+                   help="ray acceleration: auto picks brute force below 96 triangles")
     r.add_argument("-o", "--output", default="out.exr", help="EXR output (RGB + stderr)")
-    r.add_argument("--png", default=None, help="also write an sRGB PNG preview")
+    r.add_argument("--png", default=None, help="also write an sRGB PNG preview here")
     r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")
-    r.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    r.add_argument("-f", "--force", action="store_true",
+                   help="replace read-only output files")
+    r.add_argument("--no-compile-cache", action="store_true",
+                   help="do not use JAX's persistent compilation cache (also: "
+                        "JAXRT_NO_COMPILE_CACHE=1); it lives in $XDG_CACHE_HOME/jaxrt/jax "
+                        "or ~/.cache/jaxrt/jax")
+    r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     r.set_defaults(func=_render)
 
-    s = sub.add_parser("scenes", help="list the built-in scenes")
+    s = sub.add_parser("scenes", help="list the built-in scenes", formatter_class=_Formatter)
     s.set_defaults(func=_scenes)
 
-    g = sub.add_parser("gallery", help="draw every sampling warp into one PNG")
-    g.add_argument("-o", "--output", default="warp_gallery.png")
-    g.add_argument("--samples", type=int, default=200_000)
+    g = sub.add_parser("gallery", formatter_class=_Formatter,
+                       help="draw every sampling warp into one PNG (needs jaxrt[plot])",
+                       description="Draw every sampling warp: its points, a histogram of its "
+                                   "samples and its integrated pdf, with the chi-square p.")
+    g.add_argument("-o", "--output", default="warp_gallery.png", help="PNG output")
+    g.add_argument("--samples", type=_positive(int), default=200_000,
+                   help="samples per histogram")
+    g.add_argument("-f", "--force", action="store_true", help="replace a read-only output")
+    g.add_argument("--no-compile-cache", action="store_true",
+                   help="do not use JAX's persistent compilation cache")
+    g.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     g.set_defaults(func=_gallery)
     return p
 
@@ -120,9 +350,15 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)
-    except (ValueError, OSError) as e:
+    except CLIError as e:
         print(f"jaxrt: error: {e}", file=sys.stderr)
-        return 2
+        return EXIT_USAGE
+    except (ValueError, OSError) as e:  # file errors name the file and the entry
+        print(f"jaxrt: error: {e}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        print("\njaxrt: interrupted; nothing written", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

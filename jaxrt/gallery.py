@@ -44,13 +44,18 @@ def _sampler(spec, args):
 
 
 def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: int = 0,
-                 num_points: int = 2_000):
+                 num_points: int = 2_000, progress: bool = False):
     """Draw every registry warp into one PNG at ``path``; returns the list of χ² results.
 
     Args: ``path`` output file; ``num_samples`` per histogram; ``resolution`` of the
-    (s1, s2) grid; ``seed``; ``num_points`` drawn in the scatter panels.
+    (s1, s2) grid; ``seed``; ``num_points`` drawn in the scatter panels; ``progress``: a bar
+    on stderr naming the warp being compiled and tested (each is a compile of its own).
     """
-    import matplotlib
+    try:
+        import matplotlib
+    except ImportError:
+        raise ImportError("the warp gallery draws with matplotlib, which is not installed: "
+                          "pip install 'jaxrt[plot]'") from None
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -58,7 +63,9 @@ def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: in
     specs = W.REGISTRY
     fig, axes = plt.subplots(len(specs), 3, figsize=(10, 2.6 * len(specs)))
     results = []
+    bar = _bar(len(specs), progress)
     for row, spec in zip(axes, specs, strict=True):
+        bar.set_postfix_str(spec.name)
         params = spec.params[GALLERY_INDEX.get(spec.name, 0)]
         args = tuple(jnp.asarray(p, jnp.float32) for p in params)
         samp = _sampler(spec, args)
@@ -94,7 +101,32 @@ def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: in
                 ax.set_ylabel(res.axis_names[1], fontsize=7)
             verdict = "pass" if res.passed else "FAIL"
             ax.set_title(f"{name}  χ² p={res.p_value:.2g} {verdict}", fontsize=8)
+        bar.update(1)
+    bar.close()
     fig.tight_layout()
     fig.savefig(path, dpi=70)
     plt.close(fig)
     return results
+
+
+class _NoBar:
+    def set_postfix_str(self, s):
+        pass
+
+    def update(self, n):
+        pass
+
+    def close(self):
+        pass
+
+
+def _bar(total: int, show: bool):
+    if not show:
+        return _NoBar()
+    try:
+        from tqdm.auto import tqdm
+    except ImportError:
+        return _NoBar()
+    import sys
+
+    return tqdm(total=total, unit="warp", desc="gallery", file=sys.stderr)

@@ -49,6 +49,7 @@ import signal
 import sys
 import threading
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from typing import NamedTuple
 
@@ -120,7 +121,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
            seed: int = 0, *, sampler: str = "independent", spp_per_pass: int | None = None,
            time_budget: float | None = None, target_error: float | None = None,
            tile_size: int = 256, batch_size: int = 64, devices: int | None = None,
-           progress: bool | None = None, **estimator_params) -> RenderResult:
+           progress: bool | None = None, stop: threading.Event | None = None,
+           on_pass: Callable[[int], None] | None = None, **estimator_params) -> RenderResult:
     """Render ``scene`` with a direct-illumination estimator.
 
     Args:
@@ -145,6 +147,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
         devices: how many of ``jax.devices()`` to split the tiles over (default: all).
         progress: print what is compiled and show a tqdm bar on stderr (default: when more
             than one pass runs).
+        stop: an event that, once set (from another thread), stops the render as Ctrl-C does.
+        on_pass: called with the samples per pixel done after each pass.
 
     Returns a :class:`RenderResult`. Raises :class:`RenderInterrupted` (a KeyboardInterrupt
     carrying the partial result) on Ctrl-C.
@@ -199,11 +203,11 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
 
     bar = _progress_bar(spp, show)
     s1 = s2 = bad = None
-    done, passes, stopped_by = 0, 0, "spp"
+    done, passes, stopped_by = 0, 0, None
     t_start = time.perf_counter()
     last_pass = 0.0
-    with _sigint_flag() as interrupted:
-        while spp is None or done < spp:
+    with _sigint_flag(stop) as interrupted:
+        while not interrupted.is_set() and (spp is None or done < spp):
             # a shorter last pass compiles its own program (count is static)
             count = spp_per_pass if spp is None else min(spp_per_pass, spp - done)
             t_pass = time.perf_counter()
@@ -217,32 +221,36 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
                 bad += sums.bad
             done += count
             passes += 1
+            if on_pass is not None:
+                on_pass(done)
             now = time.perf_counter()
             last_pass, elapsed = now - t_pass, now - t_start
             rate = done * h * w / max(elapsed, 1e-12)
             left = None if spp is None else (spp - done) * h * w / rate
-            stop = None
+            reason = None
             if interrupted.is_set():
-                stop = "interrupted"
+                reason = "interrupted"
             elif spp is not None and done >= spp:
-                stop = "spp"
-            if stop is None and time_budget is not None:
+                reason = "spp"
+            if reason is None and time_budget is not None:
                 if elapsed + last_pass > time_budget:
-                    stop = "time_budget"
+                    reason = "time_budget"
                 left = min(math.inf if left is None else left, time_budget - elapsed)
-            if stop is None and target_error is not None and done >= 16:
+            if reason is None and target_error is not None and done >= 16:
                 rel = _error_for_stopping(s1, s2, done)
                 bar.postfix(rel_err=f"{rel:.4f}")
                 if rel <= target_error:
-                    stop = "target_error"
+                    reason = "target_error"
                 # σ ∝ 1/√n: the time the samples still needed take
                 more = done * ((rel / target_error) ** 2 - 1) * h * w / rate
                 left = more if left is None else min(left, more)
-            bar.advance(count, rate, 0.0 if stop else left)
-            if stop is not None:
-                stopped_by = stop
+            bar.advance(count, rate, 0.0 if reason else left)
+            if reason is not None:
+                stopped_by = reason
                 break
     bar.close()
+    if stopped_by is None:  # the flag was set before the first pass (during compilation)
+        stopped_by = "interrupted"
     t_render = time.perf_counter() - t_start
     result = None
     if done:
@@ -286,10 +294,10 @@ def _error_for_stopping(s1: np.ndarray, s2: np.ndarray, n: int) -> float:
 
 
 @contextmanager
-def _sigint_flag():
+def _sigint_flag(flag: threading.Event | None = None):
     """Turn the first Ctrl-C into a flag the pass loop checks (a second one interrupts at
-    once). Only in the main thread, where Python delivers signals; elsewhere a dummy flag."""
-    flag = threading.Event()
+    once). Only in the main thread, where Python delivers signals; elsewhere only ``flag``."""
+    flag = threading.Event() if flag is None else flag
     if threading.current_thread() is not threading.main_thread():
         yield flag
         return

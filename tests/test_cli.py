@@ -28,7 +28,8 @@ def rendered(tmp_path_factory):
     buf = io.StringIO()
     with contextlib.redirect_stdout(buf):
         code = main(["render", "--width", "8", "--height", "8", "--spp", "2", "-q",
-                     "-o", str(out / "box.exr"), "--png", str(out / "box.png")])
+                     "--no-compile-cache", "-o", str(out / "box.exr"), "--png",
+                     str(out / "box.png")])
     return code, buf.getvalue(), out
 
 

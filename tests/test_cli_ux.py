@@ -1,0 +1,299 @@
+"""The ``jaxrt`` command as a careless user meets it: arguments, output paths, Ctrl-C, the
+compile cache, help and messages. Tests that render use 8×8 or 16×16 images."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import os
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from jaxrt import cli
+from jaxrt.cli import main
+from jaxrt.io import read_exr, read_exr_attributes, write_exr
+
+DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
+TINY = ["--width", "8", "--height", "8", "-q", "--no-compile-cache"]
+
+
+def _run(argv) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(argv)
+    return code, out.getvalue(), err.getvalue()
+
+
+def _cli(args, env=None, **kw) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "jaxrt.cli", *args], stdout=subprocess.DEVNULL
+                            if kw.pop("quiet_stdout", False) else subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, **(env or {})), **kw)
+
+
+@pytest.fixture()
+def no_render(monkeypatch):
+    """Fail the test if the command gets as far as loading a scene."""
+    def loaded(args):
+        raise AssertionError("the scene was loaded before the output check")
+    monkeypatch.setattr(cli, "_load", loaded)
+
+
+def test_choices_equal_the_library_lists():
+    from jaxrt.estimators import ESTIMATORS
+    from jaxrt.sampler import SAMPLER_KINDS
+
+    assert tuple(cli.ESTIMATOR_NAMES) == tuple(ESTIMATORS)
+    assert tuple(cli.SAMPLER_NAMES) == tuple(SAMPLER_KINDS)
+
+
+def test_cli_import_and_output_errors_need_no_jax(tmp_path):
+    """Output checks come before JAX is imported: a bad path fails in well under a second."""
+    code = ("import sys, jaxrt.cli; assert 'jax' not in sys.modules, 'jax imported'; "
+            f"sys.exit(jaxrt.cli.main(['render', '-o', {str(tmp_path / 'no' / 'x.exr')!r}]))")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    elapsed = time.perf_counter() - t0
+    assert proc.returncode == 2, proc.stderr
+    assert "does not exist" in proc.stderr and str(tmp_path / "no" / "x.exr") in proc.stderr
+    assert elapsed < 1.0, elapsed
+
+
+@pytest.mark.parametrize("option", ["--width", "--height", "--spp", "--time-budget",
+                                    "--target-error"])
+def test_zero_sizes_and_budgets_are_usage_errors(option, capsys):
+    """--width 0 rendered 256 wide (``if args.width:`` took 0 for 'not given')."""
+    with pytest.raises(SystemExit) as info:
+        main(["render", option, "0"])
+    assert info.value.code == 2
+    assert "must be > 0, got 0" in capsys.readouterr().err
+
+
+def _readonly_dir(tmp_path, monkeypatch):
+    d = tmp_path / "ro"
+    d.mkdir()
+    real = os.access
+    # root may write anywhere, so the test also stands in for os.access
+    monkeypatch.setattr(cli.os, "access", lambda p, m: False if Path(p) == d else real(p, m))
+    d.chmod(0o555)
+    return d / "x.exr"
+
+
+@pytest.mark.parametrize("case", ["missing-dir", "is-dir", "wrong-ext", "png-ext", "ro-dir",
+                                  "ro-file"])
+def test_outputs_are_checked_before_rendering(case, tmp_path, monkeypatch, no_render):
+    target = tmp_path / "out.exr"
+    args = ["render", "-o", str(target)]
+    expect = ""
+    if case == "missing-dir":
+        target = tmp_path / "nope" / "out.exr"
+        args, expect = ["render", "-o", str(target)], "does not exist"
+    elif case == "is-dir":
+        target = tmp_path / "d.exr"
+        target.mkdir()
+        args, expect = ["render", "-o", str(target)], "is a directory"
+    elif case == "wrong-ext":
+        target = tmp_path / "image.png"
+        args, expect = ["render", "-o", str(target)], "must end in .exr"
+    elif case == "png-ext":
+        target = tmp_path / "preview.exr"
+        args, expect = ["render", "--png", str(target)], "must end in .png"
+    elif case == "ro-dir":
+        target = _readonly_dir(tmp_path, monkeypatch)
+        args, expect = ["render", "-o", str(target)], "is not writable"
+    else:  # ro-file
+        target.write_bytes(b"old")
+        target.chmod(0o444)
+        expect = "read-only; use --force"
+    code, _, err = _run(args)
+    assert code == 2
+    assert str(target) in err and expect in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_force_replaces_a_read_only_output_and_header_has_spp(tmp_path):
+    target = tmp_path / "out.exr"
+    target.write_bytes(b"old")
+    target.chmod(0o444)
+    code, out, err = _run(["render", "--spp", "2", *TINY, "-o", str(target), "--force"])
+    assert code == 0, err
+    image, _ = read_exr(target)
+    assert image.shape == (8, 8, 3)
+    attrs = read_exr_attributes(target)
+    assert attrs["spp"] == 2 and attrs["jaxrt.stopped_by"] == "spp"
+    assert attrs["jaxrt.estimator"] == "mis" and attrs["jaxrt.seed"] == 0
+
+
+def test_existing_output_survives_a_failed_run(tmp_path):
+    target = tmp_path / "out.exr"
+    write_exr(target, np.full((2, 2, 3), 7.0))
+    before = target.read_bytes()
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"camera": {"eye": [0, 0, 1], "target": [0, 0, 0]}, "meshes": []}')
+    code, _, err = _run(["render", str(bad), *TINY, "-o", str(target)])
+    assert code == 2 and str(bad) in err
+    assert target.read_bytes() == before
+
+
+def test_time_budget_is_not_capped_by_the_default_spp(tmp_path):
+    """``jaxrt render scene.json --time-budget`` stopped at the default --spp 64 ("stopped by
+    spp"); with a budget and no --spp, spp has no limit."""
+    code, out, err = _run(["render", str(DATA / "scene.json"), "--time-budget", "1.5",
+                           "--width", "16", "--height", "16", "-q", "--no-compile-cache",
+                           "-o", str(tmp_path / "budget.exr")])
+    assert code == 0, err
+    spp = int(re.search(r"^(\d+) spp in", out, re.M).group(1))
+    assert "stopped by time_budget" in out and spp > 64
+
+
+def test_mesh_file_gets_a_scene_file_message(tmp_path, capsys):
+    code = main(["render", str(DATA / "room.obj"), "-q", "-o", str(tmp_path / "x.exr")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "room.obj: a mesh file, not a scene" in err and '"file": "room.obj"' in err
+    assert "JSON" not in err  # it said "not valid JSON"
+
+
+def test_gallery_without_matplotlib_names_the_extra(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    code = main(["gallery", "-o", str(tmp_path / "g.png")])
+    assert code == 2
+    assert "pip install 'jaxrt[plot]'" in capsys.readouterr().err
+
+
+def test_help_has_description_defaults_examples_and_version(capsys):
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    top = capsys.readouterr().out
+    assert "Monte Carlo direct illumination" in top and "examples:" in top
+    assert "jaxrt render cornell_box" in top
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    sub = capsys.readouterr().out
+    assert "(default: mis)" in sub and "(default: out.exr)" in sub
+    assert "default: 64; no limit with" in " ".join(sub.split())
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    from jaxrt import __version__
+    assert capsys.readouterr().out.strip() == f"jaxrt {__version__}"
+
+
+def test_scenes_prints_no_restructuredtext(capsys):
+    assert main(["scenes"]) == 0
+    out = capsys.readouterr().out
+    assert "``" not in out and ":func:" not in out and ":data:" not in out
+    assert "LIGHT_RADIANCE" in out or "radiance" in out
+
+
+def test_plain_text():
+    assert cli.plain_text("a ``b`` :func:`c.d` :data:`~e.F` *g*") == "a b c.d e.F g"
+
+
+class _Stderr:
+    """Collects a child's stderr in a thread (tqdm writes lines without newlines)."""
+
+    def __init__(self, proc):
+        self.data = b""
+        self.thread = threading.Thread(target=self._read, args=(proc.stderr.fileno(),),
+                                       daemon=True)
+        self.thread.start()
+
+    def _read(self, fd):
+        while chunk := os.read(fd, 4096):
+            self.data += chunk
+
+    def wait_for(self, text: str, timeout: float):
+        deadline = time.monotonic() + timeout
+        while text not in self.text():
+            assert time.monotonic() < deadline, f"{text!r} not seen: {self.text()[-2000:]}"
+            time.sleep(0.02)
+
+    def text(self) -> str:
+        return self.data.decode(errors="replace")
+
+
+def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
+    """SIGINT one second into the render: the pass finishes, the image so far is written
+    with its spp in the EXR header, one line says so, exit status 130 (it took 120 s and
+    printed a traceback)."""
+    out = tmp_path / "out.exr"
+    proc = _cli(["render", "--width", "32", "--height", "32", "--spp", "100000",
+                 "--no-compile-cache", "-o", str(out), "--png", str(tmp_path / "out.png")],
+                quiet_stdout=True)
+    stderr = _Stderr(proc)
+    stderr.wait_for("compiled in", 120)
+    time.sleep(1.5)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=60)
+    elapsed = time.monotonic() - t0
+    stderr.thread.join(10)
+    err = stderr.text()
+    assert rc == 130, err
+    assert elapsed < 3.0, elapsed  # one pass of 2^20 samples, ~1 s
+    last = err.strip().splitlines()[-1]
+    m = re.fullmatch(r"jaxrt: interrupted: wrote (\d+) spp to (\S+) and (\S+)", last)
+    assert m and m.group(2) == str(out), last
+    assert "Traceback" not in err
+    spp = int(m.group(1))
+    assert spp > 0 and spp % 1000 == 0  # whole passes: 1000 divides 100000, ≤ 2^20 / 32²
+    assert read_exr_attributes(out)["spp"] == spp
+    assert read_exr_attributes(out)["jaxrt.stopped_by"] == "interrupted"
+    assert read_exr(out)[0].mean() > 0
+
+
+def test_ctrl_c_during_compilation_exits_at_once_and_keeps_the_old_file(tmp_path):
+    out = tmp_path / "out.exr"
+    write_exr(out, np.full((2, 2, 3), 7.0))
+    before = out.read_bytes()
+    proc = _cli(["render", "--width", "32", "--height", "32", "--no-compile-cache",
+                 "-o", str(out)], quiet_stdout=True)
+    stderr = _Stderr(proc)
+    stderr.wait_for("compiling", 120)
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=60)
+    elapsed = time.monotonic() - t0
+    stderr.thread.join(10)
+    err = stderr.text()
+    assert rc == 130 and "nothing written" in err.strip().splitlines()[-1], err
+    assert elapsed < 1.0, elapsed
+    assert out.read_bytes() == before
+
+
+def test_compile_cache_second_run_reads_it(tmp_path):
+    """Two runs of the same 16×16 render with the cache in $XDG_CACHE_HOME: the first fills
+    it, the second reads its program from it and reports a smaller compile time."""
+    env = {"XDG_CACHE_HOME": str(tmp_path / "cache"), "JAXRT_NO_COMPILE_CACHE": ""}
+    args = ["render", "--width", "16", "--height", "16", "--spp", "4", "-q",
+            "-o", str(tmp_path / "x.exr")]
+    times, outs = [], []
+    for _ in range(2):
+        proc = _cli(args, env=env)
+        stdout, stderr = proc.communicate(timeout=300)
+        assert proc.returncode == 0, stderr
+        times.append(float(re.search(r"\+([\d.]+) s compile", stdout).group(1)))
+        outs.append(stdout)
+        cache = tmp_path / "cache" / "jaxrt" / "jax"
+        assert cache.is_dir() and any(cache.iterdir())
+    assert "from the compile cache" not in outs[0]
+    assert "1 program(s) from the compile cache" in outs[1]
+    assert times[1] < 0.75 * times[0], times
+
+
+def test_compile_cache_can_be_turned_off(tmp_path):
+    env = {"XDG_CACHE_HOME": str(tmp_path / "cache"), "JAXRT_NO_COMPILE_CACHE": "1"}
+    proc = _cli(["render", "--width", "8", "--height", "8", "--spp", "1", "-q",
+                 "-o", str(tmp_path / "x.exr")], env=env)
+    proc.communicate(timeout=300)
+    assert proc.returncode == 0
+    assert not (tmp_path / "cache").exists()
