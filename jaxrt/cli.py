@@ -14,6 +14,7 @@ import os
 import re
 import sys
 import threading
+import warnings
 from pathlib import Path
 
 #: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
@@ -345,11 +346,18 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    """A warning as one line, without the source line Python's default format adds."""
+    print(f"jaxrt: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv=None) -> int:
     """Entry point of the ``jaxrt`` console script."""
     args = build_parser().parse_args(argv)
     try:
-        return args.func(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _show_warning
+            return args.func(args)
     except CLIError as e:
         print(f"jaxrt: error: {e}", file=sys.stderr)
         return EXIT_USAGE

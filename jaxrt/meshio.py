@@ -42,6 +42,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 import struct
 import warnings
 from typing import NamedTuple
@@ -371,6 +372,71 @@ def _nondegenerate(where: str, vertices: np.ndarray, faces: np.ndarray) -> np.nd
     return faces[keep]
 
 
+# a face corner whose vertex index is 0: "f ... 0 ..." or "f ... 0/..."
+_OBJ_ZERO_INDEX = re.compile(rb"^[ \t]*f[ \t](?:[^\n]*[ \t])?0(?:[/ \t\r\n]|$)", re.M)
+
+
+def _check_obj(path: str) -> None:
+    """Check an OBJ's ``v`` and ``f`` lines, so that an error names the line and the entry in
+    the file's own 1-based numbering (trimesh reports ``IndexError: index 98 is out of
+    bounds``, or silently wraps index 0 to the last vertex).
+
+    Positive vertex indices must lie in 1 … (vertices in the file); negative ones count back
+    from the vertices defined before the face (OBJ spec, "Referencing vertex data").
+    """
+    with open(path, encoding="utf-8", errors="replace") as f:
+        lines = f.readlines()
+    totals = [0, 0, 0]
+    for line in lines:
+        tag = line[:3].split()[:1]
+        if tag and tag[0] in ("v", "vt", "vn"):
+            totals[("v", "vt", "vn").index(tag[0])] += 1
+    seen = [0, 0, 0]
+    face = 0
+    for lineno, line in enumerate(lines, 1):
+        parts = line.split()
+        if not parts or parts[0].startswith("#"):
+            continue
+        tag, where = parts[0], f"{path}:{lineno}"
+        if tag in ("v", "vt", "vn"):
+            k = ("v", "vt", "vn").index(tag)
+            seen[k] += 1
+            if tag == "v":
+                try:
+                    if len(parts) < 4:
+                        raise ValueError
+                    [float(x) for x in parts[1:4]]
+                except ValueError:
+                    raise FileFormatError(f"{where}: vertex {seen[0]}: expected 'v x y z' with "
+                                          f"three numbers, got {line.strip()!r}") from None
+        elif tag == "f":
+            face += 1
+            if len(parts) < 4:
+                raise FileFormatError(f"{where}: face {face}: needs at least 3 vertices, got "
+                                      f"{line.strip()!r}")
+            # only vertex indices matter here (texture and normal indices are not used)
+            for corner in parts[1:]:
+                text = corner.split("/")[0]
+                try:
+                    i = int(text)
+                except ValueError:
+                    raise FileFormatError(f"{where}: face {face}: {corner!r} is not a vertex "
+                                          "index") from None
+                if i == 0:
+                    raise FileFormatError(f"{where}: face {face} refers to vertex 0; OBJ "
+                                          "indices count from 1 (or back from -1)")
+                if i > 0 and i > totals[0]:
+                    raise FileFormatError(f"{where}: face {face} refers to vertex {i}, but the "
+                                          f"file defines {_count(totals[0], 'vertex')}")
+                if i < 0 and -i > seen[0]:
+                    raise FileFormatError(f"{where}: face {face} refers to vertex {i}, but only "
+                                          f"{_count(seen[0], 'vertex')} precede it")
+
+
+def _count(n: int, what: str) -> str:
+    return f"{n} {what if n == 1 else 'vertices'}"
+
+
 def _load_scene(path: str) -> trimesh.Scene:
     try:
         # process=False: trimesh would otherwise drop NaN vertices and merge silently
@@ -410,6 +476,20 @@ def load_meshes(path: str | os.PathLike) -> list[MeshData]:
     gltf_entries = None
     if suffix in (".gltf", ".glb"):
         gltf_entries = _gltf_json(path).get("materials", [])
+    if suffix != ".obj":
+        return _load_meshes(path, gltf_entries)
+    # trimesh wraps vertex index 0 (invalid in OBJ) around to the last vertex
+    with open(path, "rb") as f:
+        if _OBJ_ZERO_INDEX.search(f.read()):
+            _check_obj(path)
+    try:
+        return _load_meshes(path, gltf_entries)
+    except FileFormatError:
+        _check_obj(path)  # a message naming the line, if the fault is one it knows
+        raise
+
+
+def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
     scene = _load_scene(path)
 
     groups: dict[tuple, list] = {}

@@ -32,19 +32,26 @@ RGB triple is)::
         {"type": "sphere", "center": [...], "radius": 0.1, "radiance": 50},
         {"type": "environment", "radiance": 0.2},   # or "file": "sky.exr" (lat-long map)
       ],
-      "options": {"accel": "auto", "triangle_sampling": "solid_angle",
+      "options": {"accel": "auto", "triangle_sampling": "area",
                   "light_selection": "power"}
     }
 
 ``transform`` applies scale, then a rotation (axis x, y, z and angle in degrees), then a
 translation. A mesh's ``material`` overrides the file's materials; its ``emission`` overrides
 the file's emission (``Ke`` in MTL, emissive factor in glTF).
+
+Unknown keys are an error at every level (``meshes[0]: unknown key 'transfrom' (did you mean
+'transform'?)``), so a typo cannot silently drop a setting; keys that start with ``_`` are
+ignored (comments, e.g. ``"_note": "..."``). Warnings raised while the scene is built (a
+zero-area emissive triangle, no light at all) name the file.
 """
 
 from __future__ import annotations
 
+import difflib
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +63,22 @@ from jaxrt.io import FileFormatError, read_exr
 from jaxrt.meshio import MaterialSpec, load_meshes
 from jaxrt.scene import Scene, build_scene, mesh
 
+# the keys each object may hold (beyond comments "_..."), by kind where the kind decides
+_TOP_KEYS = ("camera", "materials", "meshes", "lights", "options")
+_CAMERA_KEYS = ("eye", "target", "up", "fov", "width", "height")
+_MATERIAL_KEYS = {"diffuse": ("albedo",), "phong": ("kd", "ks", "exponent"),
+                  "conductor": ("alpha", "ks"), "mirror": ("ks",)}
+_MESH_KEYS = {"file": ("file", "material", "emission", "two_sided_emission", "transform"),
+              "inline": ("vertices", "faces", "material", "emission", "two_sided_emission",
+                         "transform", "name")}
+_TRANSFORM_KEYS = ("scale", "rotate", "translate")
+_LIGHT_KEYS = {"point": ("position", "intensity"),
+               "spot": ("position", "axis", "intensity", "inner_angle", "outer_angle"),
+               "directional": ("direction", "irradiance"),
+               "sphere": ("center", "radius", "radiance"),
+               "environment": ("radiance", "file", "scale")}
+_OPTION_KEYS = ("accel", "triangle_sampling", "light_selection")
+
 
 class _Ctx:
     """Error context: the file and the JSON path of the entry being read."""
@@ -65,6 +88,17 @@ class _Ctx:
 
     def fail(self, where: str, msg: str):
         raise FileFormatError(f"{self.path}: {where}: {msg}")
+
+    def check_keys(self, obj, allowed, where: str, what: str = "an object"):
+        """Fail on a key that is not in ``allowed``, suggesting the closest one."""
+        if not isinstance(obj, dict):
+            self.fail(where, f"expected {what}, got {json.dumps(obj)[:60]}")
+        for key in obj:
+            if key in allowed or (isinstance(key, str) and key.startswith("_")):
+                continue
+            close = difflib.get_close_matches(key, allowed, n=1, cutoff=0.6)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            self.fail(where, f"unknown key {key!r}{hint}; allowed: {', '.join(allowed)}")
 
     def get(self, obj: dict, key: str, where: str, default=...):
         if not isinstance(obj, dict):
@@ -78,6 +112,8 @@ class _Ctx:
 
 def _material(ctx: _Ctx, spec: dict, where: str) -> mt.Material:
     kind = ctx.get(spec, "type", where)
+    if kind in _MATERIAL_KEYS:
+        ctx.check_keys(spec, ("type",) + _MATERIAL_KEYS[kind], where)
     g = lambda k, d=...: ctx.get(spec, k, where, d)  # noqa: E731
     try:
         if kind == "diffuse":
@@ -88,6 +124,8 @@ def _material(ctx: _Ctx, spec: dict, where: str) -> mt.Material:
             return mt.conductor(g("alpha"), g("ks"))
         if kind == "mirror":
             return mt.mirror(g("ks", 1.0))
+    except FileFormatError:  # already names the file and the entry
+        raise
     except (ValueError, TypeError) as e:
         ctx.fail(where, str(e))
     ctx.fail(where, f"unknown material type {kind!r} (diffuse, phong, conductor, mirror)")
@@ -117,6 +155,7 @@ def _transform(ctx: _Ctx, t: dict | None, v: np.ndarray, where: str) -> np.ndarr
         return v
     if not isinstance(t, dict):
         ctx.fail(where, f"expected an object with scale/rotate/translate, got {t!r}")
+    ctx.check_keys(t, _TRANSFORM_KEYS, where)
     try:
         s = np.broadcast_to(np.asarray(t.get("scale", 1.0), np.float64), (3,))
         v = v * s
@@ -139,6 +178,7 @@ def _missing(ctx: _Ctx, where: str, what: str, path: Path):
 def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> list:
     if not isinstance(entry, dict):
         ctx.fail(where, f"expected a mesh object, got {entry!r}")
+    ctx.check_keys(entry, _MESH_KEYS["file" if "file" in entry else "inline"], where)
     override = None
     if "material" in entry:
         name = entry["material"]
@@ -184,6 +224,8 @@ def _rgb(value) -> np.ndarray:
 
 def _light(ctx: _Ctx, spec: dict, where: str, base: Path):
     kind = ctx.get(spec, "type", where)
+    if kind in _LIGHT_KEYS:
+        ctx.check_keys(spec, ("type",) + _LIGHT_KEYS[kind], where)
     g = lambda k, d=...: ctx.get(spec, k, where, d)  # noqa: E731
     try:
         if kind == "point":
@@ -232,10 +274,16 @@ def load_scene(path: str | os.PathLike, *, accel: str | None = None, width: int 
         raise FileFormatError(f"{path}: not valid JSON: {e}") from e
     if not isinstance(doc, dict):
         ctx.fail("top level", "expected a JSON object")
+    ctx.check_keys(doc, _TOP_KEYS, "top level")
     base = path.parent
 
     materials = {}
-    for name, spec in (doc.get("materials") or {}).items():
+    mats = doc.get("materials") or {}
+    if not isinstance(mats, dict):
+        ctx.fail("materials", "expected an object of named materials")
+    for name, spec in mats.items():
+        if name.startswith("_"):
+            continue
         materials[name] = _material(ctx, spec, f"materials.{name}")
     entries = ctx.get(doc, "meshes", "top level")
     if not isinstance(entries, list) or not entries:
@@ -243,21 +291,33 @@ def load_scene(path: str | os.PathLike, *, accel: str | None = None, width: int 
     meshes = []
     for i, entry in enumerate(entries):
         meshes += _meshes(ctx, entry, f"meshes[{i}]", materials, base)
-    lights = [_light(ctx, spec, f"lights[{i}]", base)
-              for i, spec in enumerate(doc.get("lights") or [])]
+    light_specs = doc.get("lights") or []
+    if not isinstance(light_specs, list):
+        ctx.fail("lights", "expected a list of lights")
+    lights = [_light(ctx, spec, f"lights[{i}]", base) for i, spec in enumerate(light_specs)]
 
     c = ctx.get(doc, "camera", "top level")
+    ctx.check_keys(c, _CAMERA_KEYS, "camera")
     try:
         camera = cm.look_at(eye=ctx.get(c, "eye", "camera"), target=ctx.get(c, "target", "camera"),
                             up=c.get("up", [0, 1, 0]), fov_deg=float(c.get("fov", 40.0)),
                             width=int(width or c.get("width", 256)),
                             height=int(height or c.get("height", 256)))
+    except FileFormatError:
+        raise
     except (ValueError, TypeError) as e:
         ctx.fail("camera", str(e))
     opts = doc.get("options") or {}
+    ctx.check_keys(opts, _OPTION_KEYS, "options")
     try:
-        return build_scene(meshes, camera, lights, accel=accel or opts.get("accel", "auto"),
-                           triangle_sampling=opts.get("triangle_sampling", "solid_angle"),
-                           light_selection=opts.get("light_selection", "power"))
+        # warnings (zero-area emitters, no light) name this file and point at the caller
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            scene = build_scene(meshes, camera, lights, accel=accel or opts.get("accel", "auto"),
+                                triangle_sampling=opts.get("triangle_sampling", "area"),
+                                light_selection=opts.get("light_selection", "power"))
     except (ValueError, TypeError) as e:
         ctx.fail("scene", str(e))
+    for w in caught:
+        warnings.warn(f"{path}: {w.message}", w.category, stacklevel=2)
+    return scene

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import os
 import re
 import signal
@@ -297,3 +298,23 @@ def test_compile_cache_can_be_turned_off(tmp_path):
     proc.communicate(timeout=300)
     assert proc.returncode == 0
     assert not (tmp_path / "cache").exists()
+
+
+def test_scene_warnings_are_one_line_without_source(tmp_path):
+    """A zero-area emissive triangle warns (README, "Scenes") in one line naming the file,
+    not with Python's "file:line: UserWarning" and a line of jaxrt's source."""
+    doc = {"camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
+           "materials": {"white": {"type": "diffuse", "albedo": 0.5}},
+           "meshes": [{"vertices": [[-1, 0, -1], [1, 0, -1], [1, 0, 1], [0, 1, 0], [0, 1, 0],
+                                    [1, 1, 0]],
+                       "faces": [[0, 2, 1], [3, 4, 5]], "material": "white",
+                       "emission": 1, "name": "lamp"}],
+           "lights": [{"type": "point", "position": [0, 2, 0], "intensity": 5}]}
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(doc))
+    code, _, err = _run(["render", str(path), "--spp", "1", *TINY, "-o",
+                         str(tmp_path / "x.exr")])
+    assert code == 0, err
+    lines = err.strip().splitlines()
+    assert lines == [f"jaxrt: warning: {path}: mesh 'lamp': 1 zero-area emissive triangles "
+                     "do not emit (they have no area to sample)"], err

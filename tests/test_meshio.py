@@ -383,7 +383,8 @@ def test_gltf_text_with_separate_buffer(tmp_path):
         ("r.ply", bytes(range(256)) * 2, "cannot read mesh file"),
         ("r.obj", b"hello\nworld\n", "no triangle meshes"),
         ("r.stl", b"solid x\nendsolid x\n", "unsupported mesh format"),
-        ("r.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n", "cannot read|outside"),
+        ("r.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n",
+         ":4: face 1 refers to vertex 9, but the file defines 3 vertices"),
     ],
     ids=["random-glb", "bad-json", "random-ply", "text-obj", "stl", "obj-face-out-of-range"],
 )
@@ -437,3 +438,31 @@ def test_glb_unnamed_materials_matched_by_factors(tmp_path):
     assert set(kinds) == {"diffuse", "conductor"}
     assert kinds["conductor"].vertices[:, 0].min() == 2.5  # the translated box
     assert kinds["conductor"].material.alpha == 0.25  # 0.5²
+
+
+@pytest.mark.parametrize("text, message", [
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n# two\nf 1 2 99\n",
+     r"r\.obj:6: face 2 refers to vertex 99, but the file defines 3 vertices"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n",
+     r"r\.obj:4: face 1 refers to vertex -4, but only 3 vertices precede it"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 0\n",
+     r"r\.obj:4: face 1 refers to vertex 0; OBJ indices count from 1"),
+    ("v 0 0 0\nv 1 x 0\nv 0 1 0\nf 1 2 3\n",
+     r"r\.obj:2: vertex 2: expected 'v x y z' with three numbers, got 'v 1 x 0'"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", r"r\.obj:4: face 1: needs at least 3 vertices"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 a/1\n", r"r\.obj:4: face 1: 'a/1' is not a vertex"),
+])
+def test_obj_errors_name_the_line_and_the_entry(tmp_path, text, message):
+    """OBJ errors said ``IndexError: index 98 is out of bounds`` (or, for index 0, rendered
+    a wrapped-around face as 'every triangle is degenerate')."""
+    (tmp_path / "r.obj").write_text(text)
+    with pytest.raises(FileFormatError, match=message):
+        load_meshes(tmp_path / "r.obj")
+
+
+def test_obj_valid_indices_load(tmp_path):
+    """Negative (relative) indices and v/vt/vn corners pass the check."""
+    (tmp_path / "r.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n"
+                                    "f -3/1/1 -2/1/1 -1/1/1\n")
+    (mesh,) = load_meshes(tmp_path / "r.obj")
+    assert mesh.faces.tolist() == [[0, 1, 2]]

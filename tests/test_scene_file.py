@@ -337,3 +337,82 @@ def test_bad_camera_value(tmp_path):
 
 def test_bad_option(tmp_path):
     _expect(tmp_path, _doc(options={"accel": "octree"}), "octree")
+
+
+# ---------------------------------------------------------------------------------------------
+# almost-right documents: typos are errors with a suggestion, never silently dropped
+# ---------------------------------------------------------------------------------------------
+
+TYPOS = {
+    "mesh-transfrom": (lambda d: d["meshes"][0].update(transfrom={"scale": 2}),
+                       "meshes[0]", "transfrom", "transform"),
+    "top-light": (lambda d: d.update(light=d.pop("lights")), "top level", "light", "lights"),
+    "camera-fvo": (lambda d: d["camera"].update(fvo=30), "camera", "fvo", "fov"),
+    "mesh-emision": (lambda d: d["meshes"][0].update(emision=[1, 1, 1]), "meshes[0]",
+                     "emision", "emission"),
+    "options-acel": (lambda d: d.update(options={"acel": "bvh"}), "options", "acel", "accel"),
+    "material-albdo": (lambda d: d["materials"]["white"].update(albdo=0.5),
+                       "materials.white", "albdo", "albedo"),
+    "light-positon": (lambda d: d["lights"][0].update(positon=[0, 1, 0]), "lights[0]",
+                      "positon", "position"),
+    "transform-rotation": (lambda d: d["meshes"][0].update(
+        transform={"rotation": [0, 1, 0, 90]}), "meshes[0].transform", "rotation", "rotate"),
+}
+
+
+@pytest.mark.parametrize("case", list(TYPOS))
+def test_unknown_keys_are_rejected_with_a_suggestion(tmp_path, case):
+    """Typos in keys rendered with exit code 0 and the setting dropped."""
+    edit, where, key, suggestion = TYPOS[case]
+    doc = _doc()
+    edit(doc)
+    path = _write(tmp_path, doc)
+    with pytest.raises(FileFormatError) as info:
+        load_scene(path)
+    msg = str(info.value)
+    assert msg.startswith(f"{path}: {where}: unknown key {key!r} "
+                          f"(did you mean {suggestion!r}?)"), msg
+
+
+def test_unknown_key_without_a_close_match_lists_the_allowed(tmp_path):
+    doc = _doc()
+    doc["camera"]["zzzz"] = 1
+    with pytest.raises(FileFormatError, match=r"camera: unknown key 'zzzz'; allowed: eye, "):
+        load_scene(_write(tmp_path, doc))
+
+
+def test_underscore_keys_are_comments(tmp_path):
+    doc = _doc(_note="a comment")
+    doc["camera"]["_why"] = "wide"
+    doc["materials"]["_comment"] = "ignored"
+    doc["meshes"][0]["_source"] = "hand-made"
+    assert load_scene(_write(tmp_path, doc)).width == 12
+
+
+@pytest.mark.parametrize("doc, where", [
+    (_doc(materials={"grey": {"type": "diffuse"}}), "materials.grey"),
+    (_doc(camera={"target": [0, 0, 0]}), "camera"),
+])
+def test_error_prefix_is_not_doubled(tmp_path, doc, where):
+    """It read ``typo_matkey.json: materials.grey: typo_matkey.json: materials.grey: ...``."""
+    path = _write(tmp_path, doc, "typo_matkey.json")
+    with pytest.raises(FileFormatError) as info:
+        load_scene(path)
+    msg = str(info.value)
+    assert msg.count(str(path)) == 1 and msg.count(f"{where}:") == 1, msg
+    assert "missing required key" in msg
+
+
+def test_build_warnings_name_the_file_and_point_at_the_caller(tmp_path):
+    """A zero-area emissive triangle warns (README, "Scenes"); the warning names the scene
+    file and is attributed to the line that called load_scene, not to jaxrt's source."""
+    v = QUAD_V + [[0, 1, 0], [0, 1, 0], [1, 1, 0]]
+    mesh = {"vertices": v, "faces": QUAD_F + [[4, 5, 6]], "material": "white",
+            "emission": [1, 1, 1], "name": "lamp"}
+    path = _write(tmp_path, _doc(meshes=[mesh]))
+    with pytest.warns(UserWarning) as record:
+        scene = load_scene(path)
+    msgs = [str(w.message) for w in record]
+    assert any(m.startswith(f"{path}: mesh 'lamp': 1 zero-area emissive") for m in msgs), msgs
+    assert all(w.filename == __file__ for w in record), [w.filename for w in record]
+    assert scene.num_triangles == 3
