@@ -65,10 +65,34 @@ def _size(name: str, v) -> int:
     return int(v)
 
 
-def look_at(eye, target, up, fov_deg, width: int, height: int) -> Camera:
+#: The image extents a field of view can be measured across (Mitsuba 3's ``fov_axis``):
+#: horizontal, vertical, diagonal, the smaller or the larger of width and height.
+FOV_AXES = ("x", "y", "diagonal", "smaller", "larger")
+
+
+def tan_half_fov_y(tan_half: float, fov_axis: str, aspect: float) -> float:
+    """``tan(fov_y / 2)`` from ``tan(fov / 2)`` measured across ``fov_axis``.
+
+    The image plane at distance 1 spans ``(±a·t_y, ±t_y)`` with ``a = width / height``, so
+    across x the half-extent is ``a·t_y``, across the diagonal ``t_y·√(a² + 1)``.
+    """
+    if fov_axis not in FOV_AXES:
+        raise ValueError(f"look_at: fov_axis must be one of {FOV_AXES}, got {fov_axis!r}")
+    if fov_axis == "smaller":
+        fov_axis = "y" if aspect >= 1 else "x"
+    elif fov_axis == "larger":
+        fov_axis = "x" if aspect >= 1 else "y"
+    scale = {"x": aspect, "y": 1.0, "diagonal": float(np.hypot(aspect, 1.0))}[fov_axis]
+    return tan_half / scale
+
+
+def look_at(eye, target, up, fov_deg, width: int, height: int, fov_axis: str = "y") -> Camera:
     """Camera at ``eye`` looking at ``target``, with ``up`` giving the image's upward side.
 
-    ``fov_deg``: VERTICAL field of view in degrees, in (0, 180). The frame is
+    ``fov_deg``: field of view in degrees, in (0, 180), measured across ``fov_axis``: "y"
+    (VERTICAL, the default, as pbrt's ``fov`` for a landscape image), "x" (horizontal),
+    "diagonal", "smaller" or "larger" of the two image sides (Mitsuba 3's ``fov_axis``;
+    pbrt-v4's ``fov`` is across the shorter side, "smaller"). The frame is
     ``back = (eye − target)/‖·‖``, ``right = normalize(up × back)``, ``up' = back × right``
     (Gram–Schmidt; ``up`` need not be orthogonal to the view direction). Built on the host in
     float64 and stored in the default float dtype (float32, or float64 under x64).
@@ -96,7 +120,8 @@ def look_at(eye, target, up, fov_deg, width: int, height: int) -> Camera:
     frame = np.stack([right, np.cross(back, right), back])
     dt = jax.dtypes.canonicalize_dtype(jnp.float64)
     return Camera(eye=jnp.asarray(eye, dt), frame=jnp.asarray(frame, dt),
-                  tan_half_fov=jnp.asarray(np.tan(np.radians(fov) / 2), dt),
+                  tan_half_fov=jnp.asarray(tan_half_fov_y(np.tan(np.radians(fov) / 2),
+                                                          fov_axis, width / height), dt),
                   aspect=jnp.asarray(width / height, dt), width=width, height=height)
 
 
@@ -148,5 +173,5 @@ def view_direction(camera: Camera) -> Array:
     return -camera.frame[2]
 
 
-__all__ = ["Camera", "generate_ray", "look_at", "pixel_coordinates", "project",
+__all__ = ["FOV_AXES", "Camera", "generate_ray", "look_at", "pixel_coordinates", "project",
            "view_direction"]

@@ -9,7 +9,9 @@ RGB triple is)::
 
     {
       "camera": {"eye": [x, y, z], "target": [x, y, z], "up": [0, 1, 0],
-                 "fov": 40.0,                       # vertical field of view, degrees
+                 "fov": 40.0,                       # field of view, degrees, across
+                 "fov_axis": "y",                   # "y" (default), "x", "diagonal",
+                                                    # "smaller" or "larger" image side
                  "width": 256, "height": 256},
       "materials": {                                # named materials
         "white": {"type": "diffuse", "albedo": 0.7},
@@ -65,7 +67,7 @@ from jaxrt.scene import Scene, build_scene, mesh
 
 # the keys each object may hold (beyond comments "_..."), by kind where the kind decides
 _TOP_KEYS = ("camera", "materials", "meshes", "lights", "options")
-_CAMERA_KEYS = ("eye", "target", "up", "fov", "width", "height")
+_CAMERA_KEYS = ("eye", "target", "up", "fov", "fov_axis", "width", "height")
 _MATERIAL_KEYS = {"diffuse": ("albedo",), "phong": ("kd", "ks", "exponent"),
                   "conductor": ("alpha", "ks"), "mirror": ("ks",)}
 _MESH_KEYS = {"file": ("file", "material", "emission", "two_sided_emission", "transform"),
@@ -301,6 +303,7 @@ def load_scene(path: str | os.PathLike, *, accel: str | None = None, width: int 
     try:
         camera = cm.look_at(eye=ctx.get(c, "eye", "camera"), target=ctx.get(c, "target", "camera"),
                             up=c.get("up", [0, 1, 0]), fov_deg=float(c.get("fov", 40.0)),
+                            fov_axis=c.get("fov_axis", "y"),
                             width=int(width or c.get("width", 256)),
                             height=int(height or c.get("height", 256)))
     except FileFormatError:
