@@ -43,6 +43,7 @@ from jaxrt.bvh_build import FlatBVH, build_flat_bvh
 from jaxrt.intersect import (
     Hit,
     RayFrame,
+    canonical_vertices,
     gamma,
     intersect_triangle_t,
     ray_frame,
@@ -67,6 +68,9 @@ class BVH:
     tri: 9 × (F + L,) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
         reordered by leaf, padded with L degenerate triangles (one array per coordinate: a
         gather from it is a contiguous vector per lane batch).
+    tri_sorted: 9 × (F + L,) the same triangles with their vertices in the canonical order the
+        leaf loop tests them in (:func:`jaxrt.intersect.canonical_vertices`: watertight
+        edges); ``tri`` keeps the given order for the winner's barycentrics.
     prim: (F + L,) int32 original triangle index of each reordered triangle (−1 padding).
     ng: (F + L, 3) unit geometric normals of the reordered triangles (as ``TriangleSet``).
     leaf_size: static ``L``, the most triangles in a leaf (a leaf loop runs L iterations).
@@ -77,13 +81,14 @@ class BVH:
     leaf_start: Array
     leaf_count: Array
     tri: tuple
+    tri_sorted: tuple
     prim: Array
     ng: Array
     leaf_size: int
 
     def tree_flatten(self):
-        children = (self.box, self.skip, self.leaf_start, self.leaf_count, self.tri, self.prim,
-                    self.ng)
+        children = (self.box, self.skip, self.leaf_start, self.leaf_count, self.tri,
+                    self.tri_sorted, self.prim, self.ng)
         return children, self.leaf_size
 
     @classmethod
@@ -116,12 +121,14 @@ def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
     # Zero-area triangles never hit: collapse them to a point, whose determinant is exactly
     # 0 in the watertight test, instead of testing a flag per triangle.
     tri = jnp.where(tset.valid[:, None, None], tri, tri[:, :1])
+    tri_sorted = jnp.asarray(canonical_vertices(np.asarray(tri)), dtype)
     box = np.concatenate([flat.box_lo, flat.box_hi], axis=1)
     as_int = lambda a: jnp.asarray(a, jnp.int32)
     return BVH(
         tuple(jnp.asarray(box[:, k], dtype) for k in range(6)),
         as_int(flat.skip), as_int(flat.leaf_start), as_int(flat.leaf_count),
-        tuple(tri.reshape(-1, 9).T), as_int(flat.prim), jnp.asarray(tset.ng, dtype), leaf_size,
+        tuple(tri.reshape(-1, 9).T), tuple(tri_sorted.reshape(-1, 9).T), as_int(flat.prim),
+        jnp.asarray(tset.ng, dtype), leaf_size,
     )
 
 
@@ -233,7 +240,7 @@ def _leaf_step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool) -> _Cursor:
         t, pos, ti_prev = carry
         k = start + i
         # One gather per coordinate from the SoA table: each a contiguous (lanes,) vector.
-        v = [a[k] for a in bvh.tri]
+        v = [a[k] for a in bvh.tri_sorted]
         ti = jnp.where(i < count,
                        intersect_triangle_t(ray.frame, v[0:3], v[3:6], v[6:9], c.t), inf)
         t, pos = fold(t, pos, ti_prev, k - 1)
