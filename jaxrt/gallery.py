@@ -61,7 +61,7 @@ def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: in
     import matplotlib.pyplot as plt
 
     specs = W.REGISTRY
-    fig, axes = plt.subplots(len(specs), 3, figsize=(10, 2.6 * len(specs)))
+    fig, axes = plt.subplots(len(specs), 3, figsize=(10, 2.6 * len(specs)), squeeze=False)
     results = []
     bar = _bar(len(specs), progress)
     for row, spec in zip(axes, specs, strict=True):
