@@ -157,14 +157,20 @@ def _write(args, result, interrupted: bool = False) -> None:
 
 
 def _render(args) -> int:
-    _check_output(args.output, ".exr", "-o/--output", args.force)
-    if args.png:
-        _check_output(args.png, ".png", "--png", args.force)
+    if args.process_id == 0:  # the process that writes (other hosts may lack the directory)
+        _check_output(args.output, ".exr", "-o/--output", args.force)
+        if args.png:
+            _check_output(args.png, ".png", "--png", args.force)
+    if args.processes > 1:
+        return _launch(args)
     adaptive = args.time_budget is not None or args.target_error is not None
     spp = args.spp if args.spp is not None else (None if adaptive else DEFAULT_SPP)
+    if args.num_processes > 1:
+        _join_processes(args)
     _enable_compile_cache(args)
     scene = _load(args)
-    print(scene.summary(), flush=True)
+    if args.process_id == 0:
+        print(scene.summary(), flush=True)
     params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic")
               if getattr(args, k) is not None}
     return _render_interruptibly(args, scene, spp, params)
@@ -185,7 +191,8 @@ def _render_interruptibly(args, scene, spp, params) -> int:
             box["result"] = render(scene, args.estimator, spp=spp, seed=args.seed,
                                    sampler=args.sampler, time_budget=args.time_budget,
                                    target_error=args.target_error, progress=not args.quiet,
-                                   stop=stop, on_pass=passes_done.append, **params)
+                                   spp_per_pass=args.spp_per_pass, stop=stop,
+                                   on_pass=passes_done.append, **params)
         except BaseException as e:  # handed to the main thread
             box["error"] = e
         finally:
@@ -207,6 +214,11 @@ def _render_interruptibly(args, scene, spp, params) -> int:
                 pass
         except KeyboardInterrupt:
             _quit_now("jaxrt: interrupted twice; nothing written")
+    if args.process_id != 0:  # process 0 reports and writes
+        e = box.get("error")
+        if e is not None and not isinstance(e, RenderInterrupted):
+            raise e
+        return EXIT_INTERRUPTED if e is not None else 0
     if "error" in box:
         e = box["error"]
         if isinstance(e, RenderInterrupted):
@@ -229,6 +241,82 @@ def _render_interruptibly(args, scene, spp, params) -> int:
           + (f", {result.nonfinite} non-finite samples dropped" if result.nonfinite else ""))
     _write(args, result)
     return 0
+
+
+def _join_processes(args) -> None:
+    """Join a multi-process render (``--num-processes``/``--process-id``/``--coordinator``)."""
+    if not 0 <= args.process_id < args.num_processes or not args.coordinator:
+        raise CLIError(f"--process-id must lie in [0, {args.num_processes}) and --coordinator "
+                       "HOST:PORT must be given with --num-processes")
+    import jax
+
+    jax.distributed.initialize(coordinator_address=args.coordinator,
+                               num_processes=args.num_processes, process_id=args.process_id)
+
+
+def _launch(args) -> int:
+    """``--processes N``: run N local processes of this command that render together (JAX's
+    multi-process runtime, coordinator on localhost); process 0 prints and writes the files.
+    Ctrl-C is forwarded to all of them; the first failure stops the others."""
+    import signal
+    import socket
+    import subprocess
+    import tempfile
+    import time
+
+    with socket.socket() as sock:  # a free port for the coordinator
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    argv = _without_option(args.argv, "--processes")
+    children, logs = [], []
+    for rank in range(args.processes):
+        log = tempfile.TemporaryFile() if rank else None
+        logs.append(log)
+        children.append(subprocess.Popen(
+            [sys.executable, "-m", "jaxrt.cli", *argv, "--coordinator", f"127.0.0.1:{port}",
+             "--num-processes", str(args.processes), "--process-id", str(rank)]
+            + ([] if rank == 0 else ["-q"]),
+            stdout=subprocess.DEVNULL if rank else None, stderr=log,
+            start_new_session=True))  # Ctrl-C reaches them once, through this process
+    codes: dict[int, int] = {}
+    try:
+        while len(codes) < len(children):
+            try:
+                for rank, child in enumerate(children):
+                    if rank not in codes and child.poll() is not None:
+                        codes[rank] = child.returncode
+                        if child.returncode not in (0, EXIT_INTERRUPTED):
+                            for other in children:
+                                if other.poll() is None:
+                                    other.terminate()
+                time.sleep(0.05)
+            except KeyboardInterrupt:
+                for child in children:
+                    if child.poll() is None:
+                        child.send_signal(signal.SIGINT)
+    finally:
+        for child in children:
+            if child.poll() is None:
+                child.kill()
+    failed = [r for r in range(1, len(children)) if codes.get(r) not in (0, EXIT_INTERRUPTED)]
+    for rank in failed:  # process 0 printed its own errors
+        logs[rank].seek(0)
+        tail = logs[rank].read().decode(errors="replace").strip().splitlines()[-5:]
+        print(f"jaxrt: process {rank} exited with {codes[rank]}: " + " | ".join(tail),
+              file=sys.stderr)
+    return codes[0] if codes.get(0) else (codes[failed[0]] if failed else 0)
+
+
+def _without_option(argv: list, name: str) -> list:
+    out, skip = [], False
+    for token in argv:
+        if skip:
+            skip = False
+        elif token == name:
+            skip = True
+        elif not token.startswith(name + "="):
+            out.append(token)
+    return out
 
 
 def _quit_now(message: str):
@@ -325,7 +413,23 @@ def build_parser() -> argparse.ArgumentParser:
                    help="do not use JAX's persistent compilation cache (also: "
                         "JAXRT_NO_COMPILE_CACHE=1); it lives in $XDG_CACHE_HOME/jaxrt/jax "
                         "or ~/.cache/jaxrt/jax")
+    r.add_argument("--spp-per-pass", type=_positive(int), default=None, metavar="N",
+                   help="samples per pixel per pass (default: about 2^20 samples per pass, a "
+                        "divisor of --spp; a different value changes the last bits)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    m = r.add_argument_group(
+        "several processes", "Render with N processes (JAX's multi-process runtime): the "
+        "image is bit for bit that of one process. On one machine: --processes N. On N "
+        "hosts: the same command on each, with --coordinator HOST0:PORT --num-processes N "
+        "--process-id I (process 0 writes the files).")
+    m.add_argument("--processes", type=_positive(int), default=1, metavar="N",
+                   help="start N local processes that render together")
+    m.add_argument("--num-processes", type=_positive(int), default=1, metavar="N",
+                   help="the number of processes of a multi-host render")
+    m.add_argument("--process-id", type=int, default=0, metavar="I",
+                   help="this process's index, 0 … N-1")
+    m.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="address of process 0's coordinator (any free port on host 0)")
     r.set_defaults(func=_render)
 
     s = sub.add_parser("scenes", help="list the built-in scenes", formatter_class=_Formatter)
@@ -353,7 +457,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 def main(argv=None) -> int:
     """Entry point of the ``jaxrt`` console script."""
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
+    args.argv = argv
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning

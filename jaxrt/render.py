@@ -36,10 +36,13 @@ Samples that are not finite (a NaN or Inf from a degenerate configuration) never
 image: they are replaced by zero, counted, and the count is reported. Long renders show a
 progress bar (tqdm) and can stop at a time budget or at a target relative error.
 
-Several devices: with ``devices=None`` all of ``jax.devices()`` are used. The same code runs
-on several GPUs unchanged; on several hosts, call ``jax.distributed.initialize()`` first on
-every host so that ``jax.devices()`` lists all of them (each host renders its share of tiles;
-the image is gathered by the final ``np.asarray``).
+Several devices: with ``devices=None`` all of this process's devices are used (each runs
+the same program on its own range of tiles). Several processes (``jax.distributed.initialize()``
+first in every one, e.g. ``jaxrt render --processes N`` on one machine or one process per
+host): the processes take whole passes in turn — pass ``i`` goes to process ``i mod N`` — and
+after each round every process receives every pass's sums (``process_allgather``) and adds
+them in pass order, so the image is bit for bit that of one process with the same pass size;
+process 0 decides when to stop and broadcasts it.
 """
 
 from __future__ import annotations
@@ -57,7 +60,7 @@ import jax
 import numpy as np
 
 from jaxrt.estimators import Estimator, make_estimator, prepare_scene
-from jaxrt.passes import LANES, RenderPass
+from jaxrt.passes import LANES, RenderPass, Sums
 from jaxrt.sampler import SAMPLER_KINDS
 from jaxrt.scene import Scene
 
@@ -144,7 +147,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
             256 × 64 = 16 384 lanes per step renders the 256² Cornell box 1.4–1.6× faster
             than 1 024 lanes (XLA:CPU's fixed cost per kernel call is amortised over more
             lanes; benchmarks/RESULTS.md); a small image still runs as one step of its tiles.
-        devices: how many of ``jax.devices()`` to split the tiles over (default: all).
+        devices: how many of this process's devices (``jax.local_devices()``) to split the
+            tiles over (default: all).
         progress: print what is compiled and show a tqdm bar on stderr (default: when more
             than one pass runs).
         stop: an event that, once set (from another thread), stops the render as Ctrl-C does.
@@ -172,9 +176,11 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
     if spp_per_pass is not None and not (isinstance(spp_per_pass, int | np.integer)
                                          and spp_per_pass > 0):
         raise ValueError(f"spp_per_pass must be a positive integer, got {spp_per_pass!r}")
-    num_devices = len(jax.devices()) if devices is None else int(devices)
-    if not isinstance(num_devices, int) or not 1 <= num_devices <= len(jax.devices()):
-        raise ValueError(f"devices must be between 1 and {len(jax.devices())}, got {devices}")
+    local = jax.local_devices()
+    num_devices = len(local) if devices is None else int(devices)
+    if not isinstance(num_devices, int) or not 1 <= num_devices <= len(local):
+        raise ValueError(f"devices must be between 1 and {len(local)}, got {devices}")
+    rank, num_procs = jax.process_index(), jax.process_count()
     # every pixel must take the same vectorised code path (XLA's remainder loop may round
     # differently), so tiles hold a whole number of 16-lane vectors
     tile_size = LANES * math.ceil(int(tile_size) / LANES)
@@ -188,14 +194,15 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
 
     # a stratified stream needs its number of strata: one stratification per pass if unbounded
     spp_total = int(spp) if spp is not None else spp_per_pass
-    run = RenderPass(scene, seed, jax.devices()[:num_devices], tile_size, est=est,
+    run = RenderPass(scene, seed, local[:num_devices], tile_size, est=est,
                      sampler=sampler, spp_total=spp_total, batch_size=int(batch_size))
     num_passes = None if spp is None else math.ceil(spp / spp_per_pass)
-    show = progress if progress is not None else num_passes != 1
+    show = (progress if progress is not None else num_passes != 1) and rank == 0
     t0 = time.perf_counter()
     if show:
+        procs = f" x {num_procs} processes" if num_procs > 1 else ""
         print(f"jaxrt: compiling {est.name} ({sampler}) for {w}x{h}, {spp_per_pass} spp per "
-              f"pass on {num_devices} {jax.devices()[0].platform.upper()} device(s) ...",
+              f"pass on {num_devices} {local[0].platform.upper()} device(s){procs} ...",
               file=sys.stderr, flush=True)
     t_compile = run.compile(spp_per_pass)
     if show:
@@ -203,26 +210,36 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
 
     bar = _progress_bar(spp, show)
     s1 = s2 = bad = None
-    done, passes, stopped_by = 0, 0, None
+    done, passes, stopped_by, bar_done = 0, 0, None, 0
     t_start = time.perf_counter()
     last_pass = 0.0
+    def samples_of(i: int) -> int:
+        """Samples per pixel of pass i (passes are spp_per_pass long; 0 past the end)."""
+        return spp_per_pass if spp is None else max(0, min(spp_per_pass, spp - i * spp_per_pass))
+
     with _sigint_flag(stop) as interrupted:
         while not interrupted.is_set() and (spp is None or done < spp):
-            # a shorter last pass compiles its own program (count is static)
-            count = spp_per_pass if spp is None else min(spp_per_pass, spp - done)
+            # a round: process q renders pass `passes + q` (one process: one pass per round)
+            mine = passes + rank
+            count = samples_of(mine)
             t_pass = time.perf_counter()
-            sums = run(done, count)
-            if s1 is None:
-                s1, s2, bad = (sums.s1.astype(np.float64), sums.s2.astype(np.float64),
-                               sums.bad.astype(np.int64))
-            else:
-                s1 += sums.s1
-                s2 += sums.s2
-                bad += sums.bad
-            done += count
-            passes += 1
-            if on_pass is not None:
-                on_pass(done)
+            # a shorter last pass compiles its own program (count is static)
+            sums = run(mine * spp_per_pass, count) if count else None
+            for part in _gather(sums, h * w, num_procs):
+                count_k = samples_of(passes)  # in pass order, whoever rendered it
+                if not count_k:  # idle processes of the last round
+                    break
+                if s1 is None:
+                    s1, s2, bad = (part.s1.astype(np.float64), part.s2.astype(np.float64),
+                                   part.bad.astype(np.int64))
+                else:
+                    s1 += part.s1
+                    s2 += part.s2
+                    bad += part.bad
+                done += count_k
+                passes += 1
+                if on_pass is not None:
+                    on_pass(done)
             now = time.perf_counter()
             last_pass, elapsed = now - t_pass, now - t_start
             rate = done * h * w / max(elapsed, 1e-12)
@@ -244,7 +261,10 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
                 # σ ∝ 1/√n: the time the samples still needed take
                 more = done * ((rel / target_error) ** 2 - 1) * h * w / rate
                 left = more if left is None else min(left, more)
-            bar.advance(count, rate, 0.0 if reason else left)
+            # process 0's clock and Ctrl-C decide for every process
+            reason = _agree(reason, num_procs)
+            bar.advance(done - bar_done, rate, 0.0 if reason else left)
+            bar_done = done
             if reason is not None:
                 stopped_by = reason
                 break
@@ -264,6 +284,32 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
     if stopped_by == "interrupted":
         raise RenderInterrupted(result)
     return result
+
+
+_STOP_REASONS = (None, "spp", "time_budget", "target_error", "interrupted")
+
+
+def _gather(sums, num_pixels: int, num_procs: int) -> list:
+    """Every process's sums of this round, in process order (an idle process sends zeros)."""
+    if num_procs == 1:
+        return [sums] if sums is not None else []
+    from jax.experimental import multihost_utils
+
+    if sums is None:
+        sums = Sums(np.zeros((num_pixels, 3), np.float32), np.zeros((num_pixels, 3), np.float32),
+                    np.zeros(num_pixels, np.int32))
+    both = multihost_utils.process_allgather(tuple(np.asarray(a) for a in sums))
+    return [Sums(*(a[q] for a in both)) for q in range(num_procs)]
+
+
+def _agree(reason: str | None, num_procs: int) -> str | None:
+    """Process 0's stopping decision, on every process."""
+    if num_procs == 1:
+        return reason
+    from jax.experimental import multihost_utils
+
+    code = multihost_utils.broadcast_one_to_all(np.int32(_STOP_REASONS.index(reason)))
+    return _STOP_REASONS[int(code)]
 
 
 def _mean_and_error(s1: np.ndarray, s2: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,53 @@
+"""``jaxrt render --processes 2``: two local CPU processes (JAX's multi-process runtime) render
+the image of one process, bit for bit, whatever the rounds (an uneven last round included)
+and whoever decides to stop (a time budget is decided by process 0)."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from jaxrt.io import read_exr, read_exr_attributes
+
+BASE = ["render", "--width", "16", "--height", "12", "--spp-per-pass", "2", "-q",
+        "--no-compile-cache"]
+
+
+def _run(args) -> str:
+    proc = subprocess.run([sys.executable, "-m", "jaxrt.cli", *BASE, *args],
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return proc.stdout
+
+
+@pytest.mark.slow  # ~25 s: three compiles in subprocesses
+def test_two_processes_equal_one_bit_for_bit(tmp_path):
+    # 3 passes of 2 spp: round 1 = passes 0, 1; round 2 = pass 2 and an idle process
+    _run(["--spp", "6", "--processes", "2", "-o", str(tmp_path / "two.exr")])
+    _run(["--spp", "6", "-o", str(tmp_path / "one.exr")])
+    two, two_extra = read_exr(tmp_path / "two.exr")
+    one, one_extra = read_exr(tmp_path / "one.exr")
+    assert np.array_equal(two, one) and np.array_equal(two_extra["stderr"], one_extra["stderr"])
+    assert read_exr_attributes(tmp_path / "two.exr")["spp"] == 6
+    assert one.mean() > 0
+
+
+@pytest.mark.slow  # ~25 s
+def test_two_processes_stop_together_on_a_time_budget(tmp_path):
+    out = _run(["--time-budget", "1", "--processes", "2", "-o", str(tmp_path / "two.exr")])
+    spp = int(re.search(r"^(\d+) spp in", out, re.M).group(1))
+    assert "stopped by time_budget" in out and spp % 2 == 0 and spp > 2
+    _run(["--spp", str(spp), "-o", str(tmp_path / "one.exr")])
+    assert np.array_equal(read_exr(tmp_path / "two.exr")[0], read_exr(tmp_path / "one.exr")[0])
+
+
+def test_multi_host_options_are_checked(capsys):
+    from jaxrt.cli import main
+
+    code = main(["render", "--num-processes", "2", "--process-id", "2", "-q", "-o",
+                 "/tmp/x.exr"])
+    assert code == 2 and "--process-id must lie in [0, 2)" in capsys.readouterr().err
