@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -14,8 +15,9 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def _python(code: str, cwd, timeout=600) -> subprocess.CompletedProcess:
+    # HOME in the test's directory: the README's compile-cache lines write under ~/.cache
     return subprocess.run([sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout)
+                          timeout=timeout, env=dict(os.environ, HOME=str(cwd)))
 
 
 def test_jaxrt_render_stays_the_function(tmp_path):
