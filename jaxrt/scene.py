@@ -43,7 +43,7 @@ from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
 from jaxrt.intersect import any_hit, closest_hit, gamma
-from jaxrt.vecmath import cross, dot, normalize
+from jaxrt.vecmath import dot, normalize
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
 
@@ -326,8 +326,7 @@ def light_normal(scene: Scene, light: Array, q: Array) -> Array:
     n = jnp.zeros_like(q)
     if s.count("triangle"):
         j, mine = _local_index(s, "triangle", light)
-        v = lights.triangle.vertices[j]
-        n = jnp.where(mine, normalize(cross(v[1] - v[0], v[2] - v[0])), n)
+        n = jnp.where(mine, lights.triangle.normal[j].astype(q.dtype), n)
     if s.count("sphere"):
         j, mine = _local_index(s, "sphere", light)
         n = jnp.where(mine, normalize(q - lights.sphere.center[j]), n)
@@ -342,7 +341,9 @@ def light_point_error(scene: Scene, light: Array, p: Array, q: Array) -> Array:
     relative to the ray origin, so that error grows with the light's extent seen from ``p``,
     not with ``|q|``: ``γ₇ max_i ‖v_i − p‖_∞`` in every component for a triangle (a unit
     triangle 1e-4 above ``p``, steep rays of length 3e-4: ``t`` off by 1.5e-4 relative, and
-    11 % of the shadow rays re-hit the light with ``γ₇|q|`` alone), ``γ₇ (‖c − p‖_∞ + r)`` for
+    11 % of the shadow rays re-hit the light with ``γ₇|q|`` alone), bounded from above by
+    ``‖q − p‖_∞ + diameter`` (precomputed per light, so no vertex is gathered per sample);
+    ``γ₇ (‖c − p‖_∞ + r)`` for
     a sphere; plus ``γ₇|q|`` for ``q``'s own rounding. Lights without a surface: ``γ₇|q|``.
     """
     lights = scene.lights
@@ -351,7 +352,8 @@ def light_point_error(scene: Scene, light: Array, p: Array, q: Array) -> Array:
     err = g * jnp.abs(q)
     if s.count("triangle"):
         j, mine = _local_index(s, "triangle", light)
-        extent = jnp.max(jnp.abs(lights.triangle.vertices[j].astype(q.dtype) - p))
+        # max_i ‖v_i − p‖_∞ ≤ ‖q − p‖_∞ + diameter (q lies on the triangle): no vertex gather
+        extent = jnp.max(jnp.abs(q - p)) + lights.triangle.diameter[j].astype(q.dtype)
         err = jnp.where(mine, err + g * extent, err)
     if s.count("sphere"):
         j, mine = _local_index(s, "sphere", light)

@@ -31,7 +31,7 @@ from jaxrt.lights.records import (
     safe_div,
     to_device,
 )
-from jaxrt.vecmath import area_to_solid_angle_pdf, cross, dot, length
+from jaxrt.vecmath import area_to_solid_angle_pdf, dot, length
 from jaxrt.warp import (
     square_to_spherical_triangle,
     square_to_spherical_triangle_pdf,
@@ -44,12 +44,21 @@ MIN_RELATIVE_AREA = 1e-9
 
 class TriangleLights(NamedTuple):
     """Emissive triangles. vertices (N, 3, 3); radiance (N, 3); two_sided (N,) bool;
-    prim (N,) int32, the index of each triangle in the scene geometry."""
+    prim (N,) int32, the index of each triangle in the scene geometry.
+
+    Precomputed once on the host (float64, then stored in JAX's float), so that the kernels
+    that only need them gather a row, not the vertices: normal (N, 3) unit
+    ``(v1 − v0) × (v2 − v0)``; area (N,); diameter (N,) ``max_{i,j} ‖v_i − v_j‖_∞`` (bounds
+    ``‖v_i − q‖_∞`` for every point ``q`` of the triangle).
+    """
 
     vertices: Array
     radiance: Array
     two_sided: Array
     prim: Array
+    normal: Array
+    area: Array
+    diameter: Array
 
 
 def triangle_lights(vertices, radiance, prims, two_sided=False) -> TriangleLights:
@@ -92,8 +101,11 @@ def triangle_lights(vertices, radiance, prims, two_sided=False) -> TriangleLight
         raise ValueError(f"triangle light prims: expected ({n},) integers, "
                          f"got {np.shape(prims)} {prim.dtype}")
     two = np.broadcast_to(np.asarray(two_sided, bool), (n,))
+    cross64 = np.cross(e1, e2)
+    diameter = np.max(np.abs(v[:, :, None, :] - v[:, None, :, :]), axis=(1, 2, 3))
     return TriangleLights(to_device(v), to_device(rad), jnp.asarray(two),
-                          jnp.asarray(prim, jnp.int32))
+                          jnp.asarray(prim, jnp.int32), to_device(cross64 / twice_area[:, None]),
+                          to_device(0.5 * twice_area), to_device(diameter))
 
 
 def triangle_power(t: TriangleLights) -> np.ndarray:
@@ -108,12 +120,9 @@ def triangle_power(t: TriangleLights) -> np.ndarray:
 # Kernels (one shading point).
 
 
-def _geometry(t: TriangleLights, j: Array, dtype) -> tuple[Array, Array, Array, Array]:
+def _geometry(t: TriangleLights, j: Array, dtype) -> tuple[Array, Array, Array]:
     """Vertices of triangle ``j``, its unit geometric normal and its area."""
-    v = t.vertices[j].astype(dtype)
-    n = cross(v[1] - v[0], v[2] - v[0])
-    twice_area = length(n)
-    return v, n / jnp.where(twice_area > 0, twice_area, jnp.ones_like(twice_area)), 0.5 * twice_area
+    return t.vertices[j].astype(dtype), t.normal[j].astype(dtype), t.area[j].astype(dtype)
 
 
 def _emitted(t: TriangleLights, j: Array, n: Array, wo_light: Array) -> Array:
@@ -128,8 +137,7 @@ def le_triangle_local(t: TriangleLights, j: Array, wo_light: Array) -> Array:
 
     ``wo_light``: (3,) direction leaving the light (towards the viewer / shading point), any length.
     """
-    _, n, _ = _geometry(t, j, wo_light.dtype)
-    return _emitted(t, j, n, wo_light)
+    return _emitted(t, j, t.normal[j].astype(wo_light.dtype), wo_light)
 
 
 def sample_triangle_area(t: TriangleLights, j: Array, p: Array, u: Array) -> KindSample:
@@ -149,7 +157,7 @@ def sample_triangle_area(t: TriangleLights, j: Array, p: Array, u: Array) -> Kin
 
 def pdf_triangle_area(t: TriangleLights, j: Array, p: Array, wi: Array, p_light: Array) -> Array:
     """Density of :func:`sample_triangle_area` for ``wi`` hitting triangle ``j`` at ``p_light``."""
-    _, n, area = _geometry(t, j, p.dtype)
+    n, area = t.normal[j].astype(p.dtype), t.area[j].astype(p.dtype)
     to_y = p_light.astype(p.dtype) - p
     return area_to_solid_angle_pdf(safe_div(jnp.ones_like(area), area), dot(to_y, to_y), dot(n, wi))
 
