@@ -200,7 +200,10 @@ def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> 
                 v = _transform(ctx, entry.get("transform"), md.vertices.astype(np.float64),
                                f"{where}.transform")
                 mat = override if override is not None else material_from_spec(md.material)
-                e = emission if emission is not None else md.material.emission
+                # a file's material emits only if its Ke/emissive factor is positive; an
+                # "emission" written in the scene file is the user's declaration, even 0
+                e = (emission if emission is not None
+                     else md.material.emission if md.material.is_emitter else None)
                 two = two_sided or md.material.two_sided_emission
                 out.append(mesh(v, md.faces, mat, emission=e, two_sided_emission=two,
                                 name=f"{entry['file']}:{md.name}"))
