@@ -51,3 +51,43 @@ def test_multi_host_options_are_checked(capsys):
     code = main(["render", "--num-processes", "2", "--process-id", "2", "-q", "-o",
                  "/tmp/x.exr"])
     assert code == 2 and "--process-id must lie in [0, 2)" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # ~20 s
+def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
+    """SIGINT to the launcher reaches each process once; process 0 decides, all stop after
+    the round, process 0 writes the image so far (its spp in the header), exit status 130."""
+    import os
+    import signal
+    import threading
+    import time
+
+    out = tmp_path / "out.exr"
+    proc = subprocess.Popen([sys.executable, "-m", "jaxrt.cli", "render", "--width", "32",
+                             "--height", "32", "--spp", "100000", "--no-compile-cache",
+                             "--processes", "2", "-o", str(out)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    err = bytearray()
+
+    def read():
+        while chunk := os.read(proc.stderr.fileno(), 4096):
+            err.extend(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    deadline = time.monotonic() + 180
+    while b"1000/100000" not in err and b"2000/100000" not in err:  # a first round is done
+        assert time.monotonic() < deadline and proc.poll() is None, err.decode()[-2000:]
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    rc = proc.wait(timeout=60)
+    elapsed = time.monotonic() - t0
+    reader.join(10)
+    text = err.decode(errors="replace")
+    assert rc == 130, text[-2000:]
+    assert elapsed < 5, elapsed  # a round of two 1000-spp passes (~1.5 s) and the write
+    last = text.strip().splitlines()[-1]
+    m = re.fullmatch(r"jaxrt: interrupted: wrote (\d+) spp to (\S+)", last)
+    assert m, last
+    assert int(m.group(1)) % 2000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
