@@ -345,3 +345,26 @@ def test_x64(x64):
     area = pos.size / TABLE_2D.size
     sigma = np.sqrt(np.sum(TABLE_2D.mean() / pos) / TABLE_2D.size - area**2)
     assert abs(float(jnp.mean(1 / pdf)) - area) < 5 * sigma / np.sqrt(len(u))
+
+
+@pytest.mark.parametrize("n", [2, 5, 16, 17, 40])
+def test_discrete_bin_search_both_forms_match_numpy(n):
+    """Light selection counts with unrolled compares up to UNROLLED_BINS bins and an unrolled
+    binary search beyond: both return numpy's ``searchsorted(cdf, u, 'right') − 1`` (clamped),
+    zero-width bins skipped, also for u exactly on a CDF value and at 1 − ulp."""
+    from jaxrt.distributions import UNROLLED_BINS
+
+    assert (n <= UNROLLED_BINS) == (n in (2, 5, 16))  # both forms are exercised
+    rng = np.random.default_rng(n)
+    w = rng.uniform(0.1, 1.0, n)
+    w[rng.choice(n, size=n // 3, replace=False)] = 0.0  # zero-width bins
+    w[0] = max(w[0], 0.5)
+    d = discrete_from_weights(w)
+    cdf = np.asarray(d.cdf)
+    # u in [0, 1): every CDF value below 1 (trailing zero bins put some at exactly 1)
+    u = np.concatenate([rng.uniform(size=4096).astype(np.float32), cdf[cdf < 1],
+                        [np.nextafter(np.float32(1), np.float32(0))]]).astype(np.float32)
+    idx = np.asarray(DISCRETE_SAMPLE(d, u)[0])
+    expect = np.clip(np.searchsorted(cdf, u, side="right") - 1, 0, n - 1)
+    np.testing.assert_array_equal(idx, expect)
+    assert np.all(w[idx] > 0)

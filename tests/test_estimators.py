@@ -251,3 +251,40 @@ def test_wrong_pdf_is_caught():
         jax.clear_caches()
     mean, err = np.asarray(r.mean), np.asarray(r.stderr)
     assert np.any(np.abs(mean - exact) >= 5 * err + 2e-4 * exact)
+
+
+def test_triangle_sampling_is_the_scenes_unless_the_estimator_forces_it():
+    """build_scene(triangle_sampling=...) reaches MIS (render used to overwrite it with solid
+    angle for every estimator but light_area); light_area / light_solid_angle force theirs,
+    and Scene.summary() names the mode the scene holds."""
+    from jaxrt.estimators import prepare_scene
+
+    box = _quad_light(RECT)
+    for mode in ("area", "solid_angle"):
+        s = sc.build_scene([box], CAMERA, triangle_sampling=mode)
+        assert f"triangles by {mode}" in s.summary()
+        for name in ("mis", "mis_one_sample", "bsdf", "cosine_hemisphere"):
+            used = prepare_scene(s, make_estimator(name)).lights.structure.triangle_sampling
+            assert used == mode, (name, mode)
+        assert prepare_scene(s, make_estimator("light_area")).lights.structure \
+            .triangle_sampling == "area"
+        assert prepare_scene(s, make_estimator("light_solid_angle")).lights.structure \
+            .triangle_sampling == "solid_angle"
+    assert "triangles by area" in sc.build_scene([box], CAMERA).summary()  # the default
+
+
+def test_mis_image_depends_on_the_scenes_triangle_sampling():
+    """The two modes are different estimators of the same image: same seed, different
+    samples (so the mode really is used), and means that agree within their errors."""
+    from jaxrt.render import render
+
+    box = _quad_light(RECT)
+    floor = sc.mesh([[-2, -2, 0], [2, -2, 0], [2, 2, 0], [-2, 2, 0]], [[0, 1, 2], [0, 2, 3]],
+                    mt.diffuse(0.5), name="floor")
+    cam = look_at(eye=[0, -3, 2], target=[0, 0, 0], up=[0, 0, 1], fov_deg=40, width=8, height=8)
+    r = {m: render(sc.build_scene([floor, box], cam, triangle_sampling=m), "mis", spp=256,
+                   seed=3, progress=False) for m in ("area", "solid_angle")}
+    a, b = r["area"], r["solid_angle"]
+    assert not np.array_equal(a.image, b.image)
+    z = (a.image.sum() - b.image.sum()) / np.sqrt((a.stderr**2).sum() + (b.stderr**2).sum())
+    assert abs(z) < 4, z
