@@ -21,6 +21,13 @@ from jaxrt.cli import main
 from jaxrt.io import read_exr, read_png
 
 
+@pytest.fixture(autouse=True)
+def _no_compile_cache(monkeypatch):
+    """main() would turn JAX's persistent cache on for this whole test process (and write to
+    ~/.cache); tests that want it set the variable back in a subprocess's environment."""
+    monkeypatch.setenv("JAXRT_NO_COMPILE_CACHE", "1")
+
+
 @pytest.fixture(scope="module")
 def rendered(tmp_path_factory):
     """Run ``jaxrt render --width 8 --height 8 --spp 2`` once; return (exit code, out, dir)."""

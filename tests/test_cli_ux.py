@@ -26,6 +26,13 @@ DATA = Path(__file__).resolve().parents[1] / "examples" / "data"
 TINY = ["--width", "8", "--height", "8", "-q", "--no-compile-cache"]
 
 
+@pytest.fixture(autouse=True)
+def _no_compile_cache(monkeypatch):
+    """main() would turn JAX's persistent cache on for this whole test process (and write to
+    ~/.cache); tests that want it set the variable back in a subprocess's environment."""
+    monkeypatch.setenv("JAXRT_NO_COMPILE_CACHE", "1")
+
+
 def _run(argv) -> tuple[int, str, str]:
     out, err = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
