@@ -17,6 +17,7 @@ _LAZY = {
     "mesh": ("jaxrt.scene", "mesh"),
     "render": ("jaxrt.render", "render"),
     "RenderResult": ("jaxrt.render", "RenderResult"),
+    "RenderInterrupted": ("jaxrt.render", "RenderInterrupted"),
     "load_scene": ("jaxrt.scene_file", "load_scene"),
     "chi2_test": ("jaxrt.testing", "chi2_test"),
 }

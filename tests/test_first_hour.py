@@ -34,6 +34,8 @@ def test_jaxrt_render_stays_the_function(tmp_path):
         assert all(isinstance(f, types.FunctionType) for f in (a, b, jaxrt.render, c)), (
             a, b, jaxrt.render, c)
         assert a is b is jaxrt.render is c is render
+        assert issubclass(jaxrt.RenderInterrupted, KeyboardInterrupt)
+        assert jaxrt.RenderResult is RenderResult
         print("OK")
     """)
     out = _python(code, tmp_path)
