@@ -250,6 +250,12 @@ def _join_processes(args) -> None:
                        "HOST:PORT must be given with --num-processes")
     import jax
 
+    if args.process_id != 0:
+        # process 0 decides when to stop (Ctrl-C there stops everyone after the round); a
+        # process quitting alone would leave the others waiting in a collective
+        import signal
+
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     jax.distributed.initialize(coordinator_address=args.coordinator,
                                num_processes=args.num_processes, process_id=args.process_id)
 
@@ -257,7 +263,8 @@ def _join_processes(args) -> None:
 def _launch(args) -> int:
     """``--processes N``: run N local processes of this command that render together (JAX's
     multi-process runtime, coordinator on localhost); process 0 prints and writes the files.
-    Ctrl-C is forwarded to all of them; the first failure stops the others."""
+    Ctrl-C is forwarded to process 0, which stops all after the round (or at once during
+    compilation); the first failure stops the others."""
     import signal
     import socket
     import subprocess
@@ -279,32 +286,52 @@ def _launch(args) -> int:
             stdout=subprocess.DEVNULL if rank else None, stderr=log,
             start_new_session=True))  # Ctrl-C reaches them once, through this process
     codes: dict[int, int] = {}
+    # terminated by us, or ended after process 0: their exit code says nothing
+    stopped: set[int] = set()
+    zero_done = None
     try:
         while len(codes) < len(children):
             try:
                 for rank, child in enumerate(children):
                     if rank not in codes and child.poll() is not None:
                         codes[rank] = child.returncode
+                        if rank == 0:
+                            zero_done = time.monotonic()
+                        elif zero_done:  # e.g. aborted when process 0 left: not a failure
+                            stopped.add(rank)
                         if child.returncode not in (0, EXIT_INTERRUPTED):
-                            for other in children:
-                                if other.poll() is None:
-                                    other.terminate()
+                            stopped |= _terminate(children, codes)
+                # once process 0 is done (written, or quit during compilation) the others
+                # have nothing left to do: a few seconds to exit, then they are stopped
+                if zero_done and time.monotonic() - zero_done > 5:
+                    stopped |= _terminate(children, codes)
                 time.sleep(0.05)
-            except KeyboardInterrupt:
-                for child in children:
-                    if child.poll() is None:
-                        child.send_signal(signal.SIGINT)
+            except KeyboardInterrupt:  # to process 0 only: it decides for all
+                if children[0].poll() is None:
+                    children[0].send_signal(signal.SIGINT)
     finally:
         for child in children:
             if child.poll() is None:
                 child.kill()
-    failed = [r for r in range(1, len(children)) if codes.get(r) not in (0, EXIT_INTERRUPTED)]
+    failed = [r for r in range(1, len(children))
+              if r not in stopped and codes.get(r) not in (0, EXIT_INTERRUPTED)]
     for rank in failed:  # process 0 printed its own errors
         logs[rank].seek(0)
         tail = logs[rank].read().decode(errors="replace").strip().splitlines()[-5:]
         print(f"jaxrt: process {rank} exited with {codes[rank]}: " + " | ".join(tail),
               file=sys.stderr)
-    return codes[0] if codes.get(0) else (codes[failed[0]] if failed else 0)
+    code0 = None if 0 in stopped else codes.get(0)
+    if code0:
+        return code0 if code0 > 0 else 1  # < 0: killed by a signal
+    return max(1, codes[failed[0]]) if failed else 0
+
+
+def _terminate(children, codes) -> set[int]:
+    """SIGTERM to the children still running; returns their ranks."""
+    ranks = {r for r, c in enumerate(children) if r not in codes and c.poll() is None}
+    for r in ranks:
+        children[r].terminate()
+    return ranks
 
 
 def _without_option(argv: list, name: str) -> list:

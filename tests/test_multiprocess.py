@@ -91,3 +91,23 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     m = re.fullmatch(r"jaxrt: interrupted: wrote (\d+) spp to (\S+)", last)
     assert m, last
     assert int(m.group(1)) % 2000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
+
+
+@pytest.mark.slow  # ~10 s
+def test_ctrl_c_during_compilation_stops_every_process_at_once(tmp_path):
+    import signal
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "jaxrt.cli", "render", "--width", "32",
+                             "--height", "32", "--no-compile-cache", "--processes", "2",
+                             "-o", str(tmp_path / "out.exr")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    time.sleep(4)  # the processes have started and are tracing or compiling
+    proc.send_signal(signal.SIGINT)
+    t0 = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    elapsed = time.monotonic() - t0
+    assert proc.returncode == 130, err[-2000:]
+    assert "nothing written" in err.strip().splitlines()[-1]
+    assert elapsed < 7, elapsed  # process 0 quits at once, the other within 5 s
+    assert not (tmp_path / "out.exr").exists()
