@@ -441,7 +441,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "JAXRT_NO_COMPILE_CACHE=1); it lives in $XDG_CACHE_HOME/jaxrt/jax "
                         "or ~/.cache/jaxrt/jax")
     r.add_argument("--spp-per-pass", type=_positive(int), default=None, metavar="N",
-                   help="samples per pixel per pass (default: about 2^20 samples per pass, a "
+                   help="samples per pixel per pass (default: about 2^21 samples per pass, a "
                         "divisor of --spp; a different value changes the last bits)")
     r.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     m = r.add_argument_group(

@@ -76,7 +76,7 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     deadline = time.monotonic() + 180
-    while b"1000/100000" not in err and b"2000/100000" not in err:  # a first round is done
+    while b"4000/100000" not in err:  # a first round (2 passes of 2000 spp) is done
         assert time.monotonic() < deadline and proc.poll() is None, err.decode()[-2000:]
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
@@ -86,11 +86,11 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     reader.join(10)
     text = err.decode(errors="replace")
     assert rc == 130, text[-2000:]
-    assert elapsed < 5, elapsed  # a round of two 1000-spp passes (~1.5 s) and the write
+    assert elapsed < 5, elapsed  # a round of two 2000-spp passes (~1.5 s) and the write
     last = text.strip().splitlines()[-1]
     m = re.fullmatch(r"jaxrt: interrupted: wrote (\d+) spp to (\S+)", last)
     assert m, last
-    assert int(m.group(1)) % 2000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
+    assert int(m.group(1)) % 4000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
 
 
 @pytest.mark.slow  # ~10 s

@@ -123,25 +123,25 @@ def test_error_for_stopping_formula():
 
 
 @pytest.mark.parametrize("pixels, spp, expected", [
-    (256 * 256, 64, 16), (256 * 256, 16, 16), (256 * 256, 67, 1), (256 * 256, 48, 16),
-    (16 * 16, 64, 64), (16 * 16, None, 4096), (1920 * 1080, 64, 1), (256 * 256, None, 16),
+    (256 * 256, 64, 32), (256 * 256, 16, 16), (256 * 256, 67, 1), (256 * 256, 48, 24),
+    (16 * 16, 64, 64), (16 * 16, None, 8192), (1920 * 1080, 64, 1), (256 * 256, None, 32),
 ])
 def test_default_pass_size(pixels, spp, expected):
     assert RENDER.default_spp_per_pass(pixels, spp) == expected
 
 
 def test_default_passes_are_sized_by_work_not_one_per_render(fake):
-    """64 spp of a 256×256 image: 4 passes of 16 (it was one pass of 64, so the bar sat at
+    """128 spp of a 256×256 image: 4 passes of 32 (it was one pass of 128, so the bar sat at
     0/1 for the whole render)."""
     big = TinyScene(width=256, height=256)
     FakePass.__call__, saved = (lambda self, start, count: (FakePass.calls.append(
         (start, count)), Sums(*(np.zeros((self.n, 3), np.float32),) * 2,
                               np.zeros(self.n, np.int32)))[1]), FakePass.__call__
     try:
-        r = RENDER.render(big, "mis", spp=64, progress=False)
+        r = RENDER.render(big, "mis", spp=128, progress=False)
     finally:
         FakePass.__call__ = saved
-    assert r.passes == 4 and FakePass.calls == [(0, 16), (16, 16), (32, 16), (48, 16)]
+    assert r.passes == 4 and FakePass.calls == [(0, 32), (32, 32), (64, 32), (96, 32)]
 
 
 def test_ctrl_c_stops_after_the_pass_and_returns_the_partial_image(fake):
