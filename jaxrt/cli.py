@@ -126,7 +126,8 @@ def _load(args):
 
     size = {k: getattr(args, k) for k in ("width", "height") if getattr(args, k) is not None}
     if args.scene is None or args.scene in scenes.BUILTIN:
-        return scenes.by_name(args.scene or "cornell_box", accel=args.accel, **size)
+        scene = scenes.by_name(args.scene or "cornell_box", accel=args.accel or "auto", **size)
+        return _with_options(scene, args)
     path = Path(args.scene)
     if path.suffix.lower() in MESH_SUFFIXES:
         raise CLIError(
@@ -139,7 +140,16 @@ def _load(args):
                        f"{', '.join(sorted(scenes.BUILTIN))})")
     from jaxrt.scene_file import load_scene
 
-    return load_scene(path, accel=args.accel, **size)
+    return _with_options(load_scene(path, accel=args.accel, **size), args)
+
+
+def _with_options(scene, args):
+    """The scene with the command line's ``--triangle-sampling`` (if given) in force."""
+    if args.triangle_sampling is None:
+        return scene
+    from jaxrt.scene import with_triangle_sampling
+
+    return scene.replace(lights=with_triangle_sampling(scene.lights, args.triangle_sampling))
 
 
 def _write(args, result, interrupted: bool = False) -> None:
@@ -429,8 +439,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="image width in pixels (default: the scene's)")
     r.add_argument("--height", type=_positive(int), default=None,
                    help="image height in pixels (default: the scene's)")
-    r.add_argument("--accel", default="auto", choices=("auto", "brute", "bvh"),
-                   help="ray acceleration: auto picks brute force below 96 triangles")
+    r.add_argument("--accel", default=None, choices=("auto", "brute", "bvh"),
+                   help="ray acceleration (default: the scene file's, else auto, which picks "
+                        "brute force below 96 triangles)")
+    r.add_argument("--triangle-sampling", default=None, choices=("area", "solid_angle"),
+                   help="how MIS and one-sample MIS sample triangle lights (default: the "
+                        "scene's, area unless its file says otherwise; light_area and "
+                        "light_solid_angle use their own)")
     r.add_argument("-o", "--output", default="out.exr", help="EXR output (RGB + stderr)")
     r.add_argument("--png", default=None, help="also write an sRGB PNG preview here")
     r.add_argument("--exposure", type=float, default=0.0, help="PNG exposure in stops")

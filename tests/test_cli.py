@@ -104,3 +104,34 @@ def test_console_script_help():
         assert command in proc.stdout
     proc = subprocess.run([exe, "render", "--help"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0 and "--time-budget" in proc.stdout
+
+
+def _summary_line(args, capsys):
+    assert main(["render", "--width", "8", "--height", "8", "--spp", "1", "-q",
+                 "--no-compile-cache", *args]) == 0
+    return next(line for line in capsys.readouterr().out.splitlines() if "Scene:" in line)
+
+
+def test_triangle_sampling_option_reaches_the_scene(tmp_path, capsys):
+    """``--triangle-sampling`` is honoured (Scene.summary names it); without it the scene's
+    own mode stands: area for the built-in box, the file's option for a scene file, whose
+    ``accel`` option is not overridden by a default on the command line either."""
+    out = str(tmp_path / "x.exr")
+    assert "triangles by area" in _summary_line(["-o", out], capsys)
+    assert "triangles by solid_angle" in _summary_line(
+        ["--triangle-sampling", "solid_angle", "-o", out], capsys)
+    scene = tmp_path / "quad.json"
+    scene.write_text(json.dumps({
+        "camera": {"eye": [0, -3, 2], "target": [0, 0, 0], "up": [0, 0, 1], "fov": 40,
+                   "width": 8, "height": 8},
+        "materials": {"white": {"type": "diffuse", "albedo": 0.5}},
+        "meshes": [{"vertices": [[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]],
+                    "faces": [[0, 1, 2], [0, 2, 3]], "material": "white"},
+                   {"vertices": [[-0.2, -0.2, 1], [0.2, -0.2, 1], [0.2, 0.2, 1]],
+                    "faces": [[0, 2, 1]], "material": "white", "emission": [5, 5, 5]}],
+        "options": {"accel": "bvh", "triangle_sampling": "solid_angle"}}))
+    line = _summary_line([str(scene), "-o", out], capsys)
+    assert "triangles by solid_angle" in line and "(BVH)" in line, line
+    line = _summary_line([str(scene), "--triangle-sampling", "area", "--accel", "brute",
+                          "-o", out], capsys)
+    assert "triangles by area" in line and "(TriangleSet)" in line, line
