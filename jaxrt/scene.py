@@ -52,7 +52,9 @@ class Mesh(NamedTuple):
     """A triangle mesh with one material, and optionally uniform emission (a host-side record).
 
     vertices: (V, 3) float; faces: (F, 3) int; material: a :class:`jaxrt.materials.Material`;
-    emission: (3,) radiance or None; two_sided_emission: emit on both sides.
+    emission: (3,) radiance or None (not a light); a declared emission, even 0, makes the mesh
+    a light, so the static structure follows what was declared, not the values;
+    two_sided_emission: emit on both sides.
     """
 
     vertices: np.ndarray
@@ -93,8 +95,8 @@ def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emissi
         e = np.broadcast_to(np.asarray(emission, np.float64), (3,)).copy()
         if not np.all(np.isfinite(e)) or np.any(e < 0):
             raise ValueError(f"mesh {name!r}: emission must be finite and >= 0, got {e.tolist()}")
-        if not np.any(e > 0):
-            e = None
+        # a declared emission stays a light even at 0: the scene's static structure follows
+        # what was declared, not the values, so a sweep of radiance through 0 compiles once
     return Mesh(v, f.astype(np.int32), material, e, bool(two_sided_emission), name)
 
 

@@ -42,6 +42,24 @@ def test_emissive_mesh_becomes_triangle_lights():
     assert np.asarray(s.prim_light).tolist() == [-1, -1, 0, 1]
 
 
+def test_zero_emission_keeps_the_structure_of_a_light():
+    """A sweep of a lamp's radiance through 0 keeps one static structure (one compiled
+    program): a declared emission stays a light, which then emits nothing."""
+    from jaxrt.render import render
+
+    floor = sc.mesh(QUAD, QUAD_FACES, mt.diffuse(0.5))
+    built = {e: sc.build_scene([floor, sc.mesh(QUAD + [0, 2, 0], QUAD_FACES, mt.diffuse(0.0),
+                                               emission=[e, e, e])], _camera())
+             for e in (0.0, 5.0)}
+    assert jax.tree.structure(built[0.0]) == jax.tree.structure(built[5.0])
+    shapes = lambda t: [np.shape(x) for x in jax.tree.leaves(t)]
+    assert shapes(built[0.0]) == shapes(built[5.0])
+    assert built[0.0].lights.structure.count("triangle") == 2
+    dark = render(built[0.0], "mis", spp=2, progress=False)
+    lit = render(built[5.0], "mis", spp=2, progress=False)
+    assert np.all(dark.image == 0) and dark.nonfinite == 0 and lit.image.max() > 0
+
+
 @pytest.mark.parametrize("bad, match", [
     (dict(vertices=QUAD * np.nan), "non-finite"),
     (dict(faces=[[0, 1, 7]]), "outside the vertex array"),

@@ -157,9 +157,12 @@ def test_obj_material_override_and_emission_override(tmp_path):
     doc = _doc(meshes=[{"file": "room.obj", "material": "white", "emission": 0.0}],
                lights=[{"type": "point", "position": [0, 1, 0], "intensity": 1}])
     scene = load_scene(_write(tmp_path, doc))
-    # the override replaces every file material, and emission 0 switches the lamp off
+    # the override replaces every file material, and emission 0 switches the lamp off: every
+    # triangle of the mesh is a declared light (the structure follows the declaration, so a
+    # sweep through 0 compiles once) that emits nothing
     assert scene.material_kinds == (mt.DIFFUSE,)
-    assert scene.lights.structure.count("triangle") == 0
+    assert scene.lights.structure.count("triangle") == 16
+    assert np.all(np.asarray(scene.lights.triangle.radiance) == 0)
 
 
 def test_overrides_width_height_accel(tmp_path):
@@ -418,9 +421,6 @@ def test_build_warnings_name_the_file_and_point_at_the_caller(tmp_path):
     assert scene.num_triangles == 3
 
 
-@pytest.mark.xfail(strict=True, reason="scene.mesh turns emission 0 into None (no light), so "
-                   "a sweep through 0 changes the static structure and recompiles; needs "
-                   "scene.py to keep a declared emission (issue 11, not done here)")
 def test_declared_zero_emission_stays_a_light(tmp_path):
     lit = _doc(meshes=[{"vertices": QUAD_V, "faces": QUAD_F, "material": "white",
                         "emission": 1.0}])
