@@ -55,6 +55,8 @@ class Material(NamedTuple):
     ks: Array  # (3,) phong: specular albedo; conductor: Schlick F0; mirror: reflectance
     exponent: Array  # () phong exponent n
     alpha: Array  # () GGX roughness α (conductor)
+    fresnel_schlick: Array  # () conductor: 1 Schlick F(wo·h) with F0 = ks; 0 F = ks constant
+    masking_separable: Array  # () conductor: 1 separable G1(wo)·G1(wi); 0 height-correlated G2
 
 
 class BSDFSample(NamedTuple):
@@ -85,7 +87,8 @@ def _rgb(name: str, value, lo: float = 0.0, hi: float = 1.0) -> np.ndarray:
     return v
 
 
-def _make(kind: int, kd=0.0, ks=0.0, exponent=0.0, alpha=0.0) -> Material:
+def _make(kind: int, kd=0.0, ks=0.0, exponent=0.0, alpha=0.0, fresnel_schlick=1.0,
+          masking_separable=0.0) -> Material:
     dt = _float_dtype()
     return Material(
         kind=jnp.asarray(kind, jnp.int32),
@@ -93,6 +96,8 @@ def _make(kind: int, kd=0.0, ks=0.0, exponent=0.0, alpha=0.0) -> Material:
         ks=jnp.asarray(np.broadcast_to(ks, (3,)), dt),
         exponent=jnp.asarray(exponent, dt),
         alpha=jnp.asarray(alpha, dt),
+        fresnel_schlick=jnp.asarray(fresnel_schlick, dt),
+        masking_separable=jnp.asarray(masking_separable, dt),
     )
 
 
@@ -116,16 +121,32 @@ def phong(kd, ks, exponent) -> Material:
     return _make(PHONG, kd=kd, ks=ks, exponent=n)
 
 
-def conductor(alpha, ks) -> Material:
-    """Rough GGX conductor with Schlick Fresnel of normal reflectance ``F0 = ks`` in [0, 1].
+FRESNEL_MODES = ("schlick", "none")
+MASKING_MODES = ("correlated", "separable")
+
+
+def conductor(alpha, ks, fresnel: str = "schlick", masking: str = "correlated") -> Material:
+    """Rough GGX conductor ``f = F D G / (4 cos θo cos θi)`` with reflectance ``ks`` in [0, 1].
 
     ``alpha``: GGX roughness; rejected if non-finite, negative or > 1; values in
     ``[0, ALPHA_MIN)`` are CLAMPED up to ``ALPHA_MIN = 1e-3`` (use :func:`mirror` for a delta).
+    ``fresnel``: ``"schlick"`` (``F = F0 + (1 − F0)(1 − wo·h)⁵`` with ``F0 = ks``) or
+    ``"none"`` (``F = ks``, Mitsuba 3's ``roughconductor`` with a ``specular_reflectance`` and
+    no complex IOR, i.e. ``material="none"``). ``masking``: ``"correlated"`` (height-correlated
+    Smith ``G2 = 1 / (1 + Λ(wo) + Λ(wi))``, Heitz 2014) or ``"separable"`` (``G1(wo) G1(wi)``,
+    Mitsuba 3's default). Both choices are traced numbers, not structure: switching them
+    compiles nothing new.
     """
     a = float(alpha)
     if not np.isfinite(a) or a < 0 or a > 1:
         raise ValueError(f"conductor: alpha must be finite and in [0, 1], got {alpha}")
-    return _make(CONDUCTOR, ks=_rgb("ks", ks), alpha=max(a, ALPHA_MIN))
+    if fresnel not in FRESNEL_MODES:
+        raise ValueError(f"conductor: fresnel must be one of {FRESNEL_MODES}, got {fresnel!r}")
+    if masking not in MASKING_MODES:
+        raise ValueError(f"conductor: masking must be one of {MASKING_MODES}, got {masking!r}")
+    return _make(CONDUCTOR, ks=_rgb("ks", ks), alpha=max(a, ALPHA_MIN),
+                 fresnel_schlick=float(fresnel == "schlick"),
+                 masking_separable=float(masking == "separable"))
 
 
 def mirror(ks=1.0) -> Material:
@@ -276,7 +297,7 @@ def phong_sample(m: Material, wo: Array, u: Array) -> BSDFSample:
 
 
 # ---------------------------------------------------------------------------------------------
-# Rough conductor (GGX, height-correlated Smith, Schlick Fresnel)
+# Rough conductor (GGX; height-correlated or separable Smith; Schlick or constant Fresnel)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -285,8 +306,20 @@ def _smith_g2(wo: Array, wi: Array, alpha: Array) -> Array:
     return 1 / (1 + warp.ggx_lambda(wo, alpha) + warp.ggx_lambda(wi, alpha))
 
 
+def _masking(m: Material, wo: Array, wi: Array, alpha: Array) -> Array:
+    """The material's ``G(wo, wi)``: height-correlated ``G2`` or separable ``G1(wo) G1(wi)``."""
+    separable = warp.ggx_g1(wo, alpha) * warp.ggx_g1(wi, alpha)
+    return jnp.where(m.masking_separable > 0, separable, _smith_g2(wo, wi, alpha))
+
+
+def _fresnel(m: Material, cos_h: Array) -> Array:
+    """The material's ``F``: Schlick's with ``F0 = ks``, or the constant ``ks``."""
+    ks = m.ks.astype(cos_h.dtype)
+    return jnp.where(m.fresnel_schlick > 0, schlick_fresnel(ks, cos_h), ks)
+
+
 def conductor_eval(m: Material, wo: Array, wi: Array) -> Array:
-    """``f = F(wo·h) D(h) G2(wo, wi) / (4 cos θo cos θi)``, ``h = normalize(wo + wi)``.
+    """``f = F(wo·h) D(h) G(wo, wi) / (4 cos θo cos θi)``, ``h = normalize(wo + wi)``.
 
     Walter et al. 2007, eq. 20; 0 unless ``wo_z, wi_z > 0``.
     """
@@ -294,8 +327,8 @@ def conductor_eval(m: Material, wo: Array, wi: Array) -> Array:
     h = normalize(wo + wi)
     above = _both_above(wo, wi)
     d = warp.ggx_d(h, alpha)
-    g = _smith_g2(wo, wi, alpha)
-    f = schlick_fresnel(m.ks.astype(wo.dtype), dot(wo, h)) * _safe_div(d * g, 4 * wo[2] * wi[2])
+    g = _masking(m, wo, wi, alpha)
+    f = _fresnel(m, dot(wo, h)) * _safe_div(d * g, 4 * wo[2] * wi[2])
     return jnp.where(above, f, _zero3(wo))
 
 
@@ -315,7 +348,7 @@ def conductor_pdf(m: Material, wo: Array, wi: Array) -> Array:
 def conductor_sample(m: Material, wo: Array, u: Array) -> BSDFSample:
     """Sample a visible normal ``h`` (Heitz 2018) and reflect ``wo`` about it.
 
-    The weight is evaluated in closed form, ``f cos θi / p = F(wo·h) G2 / G1(wo)``, which
+    The weight is evaluated in closed form, ``f cos θi / p = F(wo·h) G / G1(wo)``, which
     stays finite when ``D`` overflows at tiny α; 0 when ``wi`` falls below the horizon.
     """
     alpha = m.alpha.astype(wo.dtype)
@@ -325,7 +358,7 @@ def conductor_sample(m: Material, wo: Array, u: Array) -> BSDFSample:
     # the density from wi itself, so that bsdf_pdf(wi) (e.g. in MIS) agrees with it exactly
     pdf = conductor_pdf(m, wo, wi)
     g1 = warp.ggx_g1(wo, alpha)
-    w = schlick_fresnel(m.ks.astype(wo.dtype), dot(wo, h)) * _safe_div(_smith_g2(wo, wi, alpha), g1)
+    w = _fresnel(m, dot(wo, h)) * _safe_div(_masking(m, wo, wi, alpha), g1)
     ok = _both_above(wo, wi) & (pdf > 0)
     return BSDFSample(wi, pdf, jnp.where(ok, w, _zero3(wo)), jnp.asarray(False))
 

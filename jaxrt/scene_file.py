@@ -17,6 +17,8 @@ RGB triple is)::
         "white": {"type": "diffuse", "albedo": 0.7},
         "plastic": {"type": "phong", "kd": 0.5, "ks": 0.3, "exponent": 40},
         "gold": {"type": "conductor", "alpha": 0.1, "ks": [1.0, 0.78, 0.34]},
+        "copper": {"type": "conductor", "alpha": 0.2, "ks": [0.95, 0.64, 0.54],
+                   "fresnel": "none", "masking": "separable"},   # as Mitsuba 3's
         "chrome": {"type": "mirror", "ks": 0.9}
       },
       "meshes": [
@@ -69,7 +71,7 @@ from jaxrt.scene import Scene, build_scene, mesh
 _TOP_KEYS = ("camera", "materials", "meshes", "lights", "options")
 _CAMERA_KEYS = ("eye", "target", "up", "fov", "fov_axis", "width", "height")
 _MATERIAL_KEYS = {"diffuse": ("albedo",), "phong": ("kd", "ks", "exponent"),
-                  "conductor": ("alpha", "ks"), "mirror": ("ks",)}
+                  "conductor": ("alpha", "ks", "fresnel", "masking"), "mirror": ("ks",)}
 _MESH_KEYS = {"file": ("file", "material", "emission", "two_sided_emission", "transform"),
               "inline": ("vertices", "faces", "material", "emission", "two_sided_emission",
                          "transform", "name")}
@@ -123,7 +125,8 @@ def _material(ctx: _Ctx, spec: dict, where: str) -> mt.Material:
         if kind == "phong":
             return mt.phong(g("kd"), g("ks"), g("exponent"))
         if kind == "conductor":
-            return mt.conductor(g("alpha"), g("ks"))
+            return mt.conductor(g("alpha"), g("ks"), g("fresnel", "schlick"),
+                                g("masking", "correlated"))
         if kind == "mirror":
             return mt.mirror(g("ks", 1.0))
     except FileFormatError:  # already names the file and the entry

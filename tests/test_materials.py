@@ -27,6 +27,10 @@ CASES = {
     "conductor-a0.05": lambda: mat.conductor(0.05, [0.9, 0.6, 0.3]),
     "conductor-a0.3": lambda: mat.conductor(0.3, 0.95),
     "conductor-a1": lambda: mat.conductor(1.0, 0.8),
+    # Mitsuba 3's roughconductor: constant F = ks, separable Smith G1·G1
+    "conductor-a0.3-mitsuba": lambda: mat.conductor(0.3, [0.9, 0.6, 0.3], fresnel="none",
+                                                    masking="separable"),
+    "conductor-a0.05-separable": lambda: mat.conductor(0.05, 0.95, masking="separable"),
 }
 THETAS_DEG = [0.0, 45.0, 80.0, 89.0]
 # registry guard: every non-delta kind of the library is covered by some case
@@ -354,3 +358,32 @@ def test_phong_lobe_pdf_finite_for_slightly_non_unit_directions():
         exact = (n + 1) / (2 * np.pi) * z**n
         # 1 − cos is taken directly below z = ½, so cosⁿ keeps its float32 relative accuracy
         assert np.allclose(pdf, exact, rtol=1e-4 * max(n, 1), atol=1e-30), n
+
+
+def test_conductor_mitsuba_form_matches_its_formula():
+    """fresnel="none", masking="separable": f = ks D(h) G1(wo) G1(wi) / (4 cos θo cos θi), with
+    D and G1 written out here in float64 (Walter et al. 2007, eqs. 33–34), not taken from jaxrt;
+    and the default (Schlick, height-correlated) differs from it."""
+    alpha, ks = 0.3, np.array([0.9, 0.6, 0.3])
+    m = mat.conductor(alpha, ks, fresnel="none", masking="separable")
+    rng = np.random.default_rng(5)
+
+    def tan2(w):
+        return (1 - w[2] ** 2) / w[2] ** 2
+
+    def g1(w):
+        return 2 / (1 + np.sqrt(1 + alpha**2 * tan2(w)))
+
+    for _ in range(20):
+        wo, wi = (v / np.linalg.norm(v) for v in rng.normal(size=(2, 3)) * [1, 1, 0.3] + [0, 0, 1])
+        h = (wo + wi) / np.linalg.norm(wo + wi)
+        d = alpha**2 / (np.pi * h[2] ** 4 * (alpha**2 + tan2(h)) ** 2)
+        expect = ks * d * g1(wo) * g1(wi) / (4 * wo[2] * wi[2])
+        got = np.asarray(mat.conductor_eval(m, jnp.asarray(wo, jnp.float32),
+                                            jnp.asarray(wi, jnp.float32)))
+        np.testing.assert_allclose(got, expect, rtol=2e-4)
+    # at grazing angles Schlick's F and the correlated G2 differ from ks and G1·G1 by > 5 %
+    wo, wi = wo_at(80.0), wo_at(75.0, phi=2.5)
+    a, b = (np.asarray(mat.conductor_eval(x, wo, wi))
+            for x in (m, mat.conductor(alpha, ks)))
+    assert np.all(np.abs(a - b) > 0.05 * a), (a, b)

@@ -437,3 +437,19 @@ def test_file_materials_without_ke_do_not_emit(tmp_path):
     scene = load_scene(_write(tmp_path, _doc(meshes=[{"file": "room.obj"}])))
     # only the Ke lamp (2 triangles) became lights, beside the document's point light
     assert scene.lights.structure.counts == (1, 0, 0, 2, 0, 0)
+
+
+def test_conductor_fresnel_and_masking_options(tmp_path):
+    """Mitsuba 3's roughconductor (F = ks, separable G1·G1) is expressible in a scene file;
+    a bad choice names the entry."""
+    doc = _doc()
+    doc["materials"]["cu"] = {"type": "conductor", "alpha": 0.2, "ks": 0.9, "fresnel": "none",
+                              "masking": "separable"}
+    doc["meshes"][0]["material"] = "cu"
+    scene = load_scene(_write(tmp_path, doc))
+    row = int(np.flatnonzero(np.asarray(scene.materials.kind) == mt.CONDUCTOR)[0])
+    assert float(scene.materials.fresnel_schlick[row]) == 0.0
+    assert float(scene.materials.masking_separable[row]) == 1.0
+    doc["materials"]["cu"]["masking"] = "uncorrelated"
+    with pytest.raises(ValueError, match="materials.cu.*masking"):
+        load_scene(_write(tmp_path, doc, "bad.json"))
