@@ -47,6 +47,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from jaxrt import lights as lt
@@ -413,10 +414,20 @@ def estimate_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: in
 
     The point ``p`` (3,) with unit normal ``n`` is shaded with material row ``material`` of the
     scene, seen along ``wo`` (unit, towards the viewer); the scene supplies lights and
-    occluders. Returns the Monte Carlo mean of ``num_samples`` independent estimates and its
-    standard error ``σ/√N``. Useful to test an estimator against :mod:`jaxrt.analytic`.
+    occluders (:func:`jaxrt.scene.shading_scene` builds one from a material and lights alone).
+    Returns the Monte Carlo mean of ``num_samples`` independent estimates and its standard
+    error ``σ/√N``. Useful to test an estimator against :mod:`jaxrt.analytic`.
+
+    Raises ValueError when ``wo`` is not above the surface (``n · wo ≤ 0``): BSDFs are
+    one-sided about ``n``, and the renderer would shade the other side (flip ``n`` yourself
+    to mean that).
     """
     est = make_estimator(estimator, **params)
+    if not isinstance(wo, jax.core.Tracer) and not isinstance(n, jax.core.Tracer):
+        cos_o = float(np.dot(np.asarray(n, np.float64), np.asarray(wo, np.float64)))
+        if not cos_o > 0:
+            raise ValueError(f"wo is not above the surface: n · wo = {cos_o:.3g} ≤ 0 (flip n to "
+                             "shade the other side)")
     scene = prepare_scene(scene, est)
     dtype = scene.triangles.dtype
     p, n, wo = (jnp.asarray(a, dtype) for a in (p, n, wo))

@@ -226,6 +226,26 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     )
 
 
+def shading_scene(material: mt.Material, lights: Sequence[Any], occluders: Sequence[Mesh] = (),
+                  **options) -> Scene:
+    """A scene for shading one point (``jaxrt.estimators.estimate_at``): no mesh or camera needed.
+
+    ``material`` is material row 0 (shade with ``material=0``); ``lights`` are light records
+    (:mod:`jaxrt.lights`); ``occluders`` optional meshes (emissive ones are lights too).
+    Without occluders nothing blocks any ray: the geometry is one zero-area triangle, which is
+    never hit. ``options`` go to :func:`build_scene` (``triangle_sampling``, ...); the camera
+    is a 1×1 placeholder.
+    """
+    from jaxrt.camera import look_at
+
+    # collinear, so zero area (flagged invalid, never hit), and a scene radius of 1 for the
+    # power of directional and environment lights
+    segment = np.array([[-1.0, 0, 0], [0, 0, 0], [1, 0, 0]])
+    placeholder = mesh(segment, [[0, 1, 2]], material, name="shading point")
+    cam = look_at(eye=[0, 0, 1], target=[0, 0, 0], up=[0, 1, 0], fov_deg=1, width=1, height=1)
+    return build_scene([placeholder, *occluders], cam, lights, **options)
+
+
 def _bounding_radius(triangles: np.ndarray) -> float:
     lo, hi = triangles.reshape(-1, 3).min(0), triangles.reshape(-1, 3).max(0)
     return float(0.5 * np.linalg.norm(hi - lo))

@@ -288,3 +288,28 @@ def test_mis_image_depends_on_the_scenes_triangle_sampling():
     assert not np.array_equal(a.image, b.image)
     z = (a.image.sum() - b.image.sum()) / np.sqrt((a.stderr**2).sum() + (b.stderr**2).sum())
     assert abs(z) < 4, z
+
+
+def test_estimate_at_needs_only_a_material_and_lights():
+    """shading_scene: no mesh, no camera; nothing occludes; the estimate matches the oracle
+    (a point light overhead and a rectangle light by Lambert's formula) within 5σ."""
+    pos, intensity = np.array([0.0, 0.0, 2.0]), 3.0
+    s = sc.shading_scene(mt.diffuse(ALBEDO), [lt.point_light(pos, [intensity] * 3)])
+    r = estimate_at(s, "mis", np.zeros(3), Z, WO, num_samples=1 << 12, seed=1)
+    exact = ALBEDO * intensity / 4.0 / np.pi
+    np.testing.assert_allclose(np.asarray(r.mean), exact, rtol=1e-5)  # a delta light: exact
+    lamp = _quad_light(RECT)
+    s = sc.shading_scene(mt.diffuse(ALBEDO), [], occluders=[lamp])
+    _, _, exact = _polygon_case(RECT)
+    r = estimate_at(s, "mis", np.zeros(3), Z, WO, num_samples=N, seed=2)
+    mean, err = np.asarray(r.mean, np.float64), np.asarray(r.stderr, np.float64)
+    assert np.all(np.abs(mean - exact) < 5 * err + 2e-4 * exact), (mean, err, exact)
+    assert np.all(err < 0.2 * exact)
+
+
+def test_estimate_at_refuses_a_viewer_below_the_surface():
+    s = sc.shading_scene(mt.diffuse(ALBEDO), [lt.point_light([0, 0, 2], [1, 1, 1])])
+    with pytest.raises(ValueError, match="not above the surface"):
+        estimate_at(s, "mis", np.zeros(3), Z, -WO)
+    with pytest.raises(ValueError, match="not above the surface"):
+        estimate_at(s, "mis", np.zeros(3), Z, np.array([1.0, 0.0, 0.0]))  # grazing: n·wo = 0
