@@ -229,6 +229,16 @@ class _Stderr:
         return self.data.decode(errors="replace")
 
 
+def _interrupt(proc, stderr) -> tuple[int, float, str]:
+    """Send SIGINT to the CLI process: (exit code, seconds until it exited, its stderr)."""
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=60)
+    elapsed = time.monotonic() - t0
+    stderr.thread.join(10)
+    return rc, elapsed, stderr.text()
+
+
 def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     """SIGINT one second into the render: the pass finishes, the image so far is written
     with its spp in the EXR header, one line says so, exit status 130 (it took 120 s and
@@ -240,12 +250,7 @@ def test_ctrl_c_writes_the_partial_image_and_exits_130(tmp_path):
     stderr = _Stderr(proc)
     stderr.wait_for("compiled in", 120)
     time.sleep(1.5)
-    t0 = time.monotonic()
-    proc.send_signal(signal.SIGINT)
-    rc = proc.wait(timeout=60)
-    elapsed = time.monotonic() - t0
-    stderr.thread.join(10)
-    err = stderr.text()
+    rc, elapsed, err = _interrupt(proc, stderr)
     assert rc == 130, err
     assert elapsed < 3.0, elapsed  # one pass of 2^21 samples, ~1.3 s
     last = err.strip().splitlines()[-1]
@@ -267,12 +272,7 @@ def test_ctrl_c_during_compilation_exits_at_once_and_keeps_the_old_file(tmp_path
                  "-o", str(out)], quiet_stdout=True)
     stderr = _Stderr(proc)
     stderr.wait_for("compiling", 120)
-    t0 = time.monotonic()
-    proc.send_signal(signal.SIGINT)
-    rc = proc.wait(timeout=60)
-    elapsed = time.monotonic() - t0
-    stderr.thread.join(10)
-    err = stderr.text()
+    rc, elapsed, err = _interrupt(proc, stderr)
     assert rc == 130 and "nothing written" in err.strip().splitlines()[-1], err
     assert elapsed < 1.0, elapsed
     assert out.read_bytes() == before
