@@ -457,8 +457,10 @@ def triangle_set(triangles) -> TriangleSet:
     n64 = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
     length = np.linalg.norm(n64, axis=1, keepdims=True)
     ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
+    # sorted as stored (float64 input may be stored as float32: two vertices that round to the
+    # same float32 must sort alike in every triangle that shares them)
     return TriangleSet(vertices, jnp.asarray(ng.astype(vertices.dtype)), jnp.asarray(valid),
-                       jnp.asarray(canonical_vertices(tri)))
+                       jnp.asarray(canonical_vertices(np.asarray(vertices))))
 
 
 def canonical_vertices(triangles: np.ndarray) -> np.ndarray:

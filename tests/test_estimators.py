@@ -47,10 +47,8 @@ def _rot_x(deg):
 
 
 def _scene(meshes=(), lights=()):
-    """Receiver material at row 0; a tiny dummy triangle far below when there is no mesh."""
-    receiver = sc.mesh([[0, 0, -1e3], [1, 0, -1e3], [0, 1, -1e3]], [[0, 1, 2]],
-                       mt.diffuse(ALBEDO), name="dummy")
-    return sc.build_scene([receiver, *meshes], CAMERA, list(lights))
+    """The receiver's material at row 0, and nothing else but the lights and ``meshes``."""
+    return sc.shading_scene(mt.diffuse(ALBEDO), list(lights), occluders=list(meshes))
 
 
 def _quad_light(quad, radiance=1.0):

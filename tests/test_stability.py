@@ -26,7 +26,6 @@ from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt import scene as sc
 from jaxrt import warp as W
-from jaxrt.camera import look_at
 from jaxrt.estimators import estimate_at
 
 F32 = jnp.float32
@@ -173,7 +172,6 @@ def test_sharp_bsdf_grazing_eval(mat_name):
 
 ALBEDO = 0.5
 N_EST = 1 << 13
-CAMERA = look_at(eye=[0, -3, 1], target=[0, 0, 0], up=[0, 0, 1], fov_deg=30, width=4, height=4)
 Z = np.array([0.0, 0.0, 1.0])
 WO = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
 
@@ -188,20 +186,15 @@ def _sphere(radius):
     return np.array([0.3, 0.0, radius + 1.0])
 
 
-def _receiver():
-    # material row 0 for the shading point; a dummy triangle far below so there is a mesh
-    return sc.mesh([[0, 0, -1e3], [1, 0, -1e3], [0, 1, -1e3]], [[0, 1, 2]], mt.diffuse(ALBEDO),
-                   name="dummy")
-
-
 def _triangle_scene(tri, radiance):
+    # material row 0 for the shading point, nothing else but the lamp
     lamp = sc.mesh(tri, [[0, 1, 2]], mt.diffuse(0.0), emission=radiance, name="lamp")
-    return sc.build_scene([_receiver(), lamp], CAMERA)
+    return sc.shading_scene(mt.diffuse(ALBEDO), [], occluders=[lamp])
 
 
 def _sphere_scene(radius, radiance):
-    return sc.build_scene([_receiver()], CAMERA, [lt.sphere_light(_sphere(radius), radius,
-                                                                  [radiance] * 3)])
+    return sc.shading_scene(mt.diffuse(ALBEDO), [lt.sphere_light(_sphere(radius), radius,
+                                                                 [radiance] * 3)])
 
 
 def _triangle_exact(tri, radiance):
@@ -364,7 +357,7 @@ def test_zero_radiance_light_estimates_exactly_zero():
     for est in ("light_solid_angle", "mis"):
         r = estimate_at(scene, est, np.zeros(3), Z, WO, num_samples=N_EST, seed=5)
         assert np.all(np.asarray(r.mean) == 0) and np.all(np.asarray(r.stderr) == 0), est
-    # a dark triangle light (build_scene drops zero-emission meshes, so via light_table): the
+    # a dark triangle light, through its light table: the
     # samples carry li = 0 exactly with a finite positive density
     for sampling in ("area", "solid_angle"):
         lights = _light_table("triangle", 1.0, 0.0, sampling)
