@@ -42,7 +42,8 @@ def rmse(image: np.ndarray, reference: np.ndarray) -> float:
 
 def main(argv=None) -> dict:
     """Run the comparison; returns {"reference": (H, W, 3) image, "rows": one dict per
-    estimator (estimator, spp, passes, seconds, compile, msps, rmse, nonfinite, image)}."""
+    estimator (estimator, spp, passes, seconds, last_pass, compile, msps, rmse, nonfinite,
+    image)}."""
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--time", type=float, default=10.0, help="seconds of rendering per estimator")
     p.add_argument("--size", type=int, default=128, help="image width and height")
@@ -69,7 +70,8 @@ def main(argv=None) -> dict:
     for name in args.estimators:
         r = render(scene, name, spp=MAX_SPP, seed=args.seed, time_budget=args.time, **common)
         rows.append(dict(estimator=name, spp=r.spp, passes=r.passes, seconds=r.timings["render"],
-                         compile=r.timings["compile"], msps=r.timings["samples_per_s"] / 1e6,
+                         last_pass=r.timings["last_pass"], compile=r.timings["compile"],
+                         msps=r.timings["samples_per_s"] / 1e6,
                          rmse=rmse(r.image, reference), nonfinite=r.nonfinite, image=r.image))
 
     # one exposure for every panel: the reference's 99th percentile maps to white

@@ -73,7 +73,8 @@ class RenderResult(NamedTuple):
     equal, e.g. a penumbra whose rare lit samples were never drawn: an *estimate* from the
     samples taken, not a bound); spp: samples per pixel taken; nonfinite: how many samples
     were NaN/Inf (dropped as zero); timings: dict of seconds (``compile``, ``render``,
-    ``total``) and ``samples_per_s``; passes: number of progressive passes run; stopped_by:
+    ``total``, ``last_pass``: the seconds of the last pass, which the time-budget rule
+    extrapolates) and ``samples_per_s``; passes: number of progressive passes run; stopped_by:
     "spp", "time_budget", "target_error" or "interrupted".
     """
 
@@ -276,7 +277,7 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
     if done:
         mean, err = _mean_and_error(s1, s2, done)
         timings = {"compile": t_compile, "render": t_render, "total": time.perf_counter() - t0,
-                   "samples_per_s": done * h * w / max(t_render, 1e-12)}
+                   "last_pass": last_pass, "samples_per_s": done * h * w / max(t_render, 1e-12)}
         result = RenderResult(image=mean.reshape(h, w, 3).astype(np.float32),
                               stderr=err.reshape(h, w, 3).astype(np.float32), spp=done,
                               nonfinite=int(bad.sum()), timings=timings, passes=passes,

@@ -57,9 +57,10 @@ def test_estimators_equal_time(tmp_path, capsys):
     assert [r["estimator"] for r in rows] == chosen
     ref = res["reference"]
     for r in rows:
-        # the budget is spent before stopping: render() starts no pass that would end past it,
-        # so it stops within about one pass (two, for a pass slower than the last) of 0.5 s
-        assert r["spp"] > 0 and r["seconds"] + 2 * r["seconds"] / r["passes"] >= 0.5, r
+        # the budget is spent before stopping: render() stops when the elapsed time plus the
+        # last pass's time passes 0.5 s (a loaded machine can make that pass several times the
+        # mean pass, so the mean is no bound: CI once stopped at 0.497 s after 620 passes)
+        assert r["spp"] > 0 and r["seconds"] + r["last_pass"] > 0.5, r
         assert r["seconds"] <= 0.75, r
         # unbiased estimators of the same image: the error is far below that of a black image
         # (RMSE of black = RMS of the reference); half of it already needs ≳ 4 spp per pixel

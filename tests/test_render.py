@@ -26,6 +26,7 @@ def test_result_shapes_and_dtypes(box16):
     assert r.spp == 4 and r.nonfinite == 0 and r.passes == 1
     assert np.all(np.isfinite(r.image)) and np.all(r.image >= 0)
     assert r.timings["samples_per_s"] > 0 and r.timings["compile"] > 0
+    assert 0 < r.timings["last_pass"] <= r.timings["render"]
     # the light is visible from the camera: some pixels carry its radiance directly
     assert r.image.max() > 5
 
