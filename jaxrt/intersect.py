@@ -41,19 +41,16 @@ and a ``while_loop`` with early exit made any-hit ~3× slower than the ``fori_lo
 winner's barycentrics and normal are recovered after the loop. Work on ``(N, 3)`` arrays
 sliced along the minor axis was ~100× slower under ``vmap``, hence the scalar-component kernel.
 
-Closest hit is software-pipelined (iteration i tests triangle i against the ray's t_max and
-folds triangle i−1's distance into ``(t, prim)``): the test's only consumer is then the loop
-carry and XLA:CPU computes it once per triangle (the running closest t no longer serves as
-the test's t_max; the choice, smallest t with ties to the lowest index, is the same).
-Feeding it to both ``t`` and ``prim`` made XLA fuse it into each output's kernel, three tests
-per triangle, and the
-``optimization_barrier`` meant to prevent that is removed by XLA's ``cse_barrier_expander``
-before fusion (jax 0.10.2). Measured on the Cornell box (32 triangles), random rays inside the
-box, paired in one process at load 3–3.6: 1.84× at 1 024 lanes, 1.63× at 65 536; the whole
-256² MIS render 1.33×; t and prim bit-identical. Unrolling does not help: ``unroll`` 2 / 4 of
-the pipelined loop was 1.5× slower than none (XLA fuses the chained updates and duplicates the
-tests again), full unroll (32) 40× slower to run and 55 s to compile, and full unroll of the
-old loop inside the render did not finish compiling in 20 min (6.8 GB).
+Closest hit carries ``(t, prim)`` as ONE complex number ``t + i·prim`` (prim exact as a float
+below 2^24 triangles): the loop body then has one output and compiles to one kernel per
+triangle, as any-hit does. With two carries XLA:CPU ran the test plus two update kernels and
+three copies per triangle (and fused the test into each update, three tests per triangle,
+unless the loop was software-pipelined; ``optimization_barrier`` is removed by XLA's
+``cse_barrier_expander`` before fusion, jax 0.10.2). Measured on the 36-triangle box, 2^16
+incoherent rays: 18.3 → 28.7 Mrays/s (the cost of the test alone, without ``prim``, is
+29.8); the 256² MIS render 1.12× per CPU-second, paired, images bit-identical. Unrolling does
+not help: ``unroll`` 2 / 4 of the (earlier, pipelined) loop was 1.5× slower than none, full
+unroll (32) 40× slower to run and 55 s to compile.
 """
 
 from __future__ import annotations
@@ -346,6 +343,10 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
             jnp.where(degenerate, zero, b1), jnp.where(degenerate, zero, b2))
 
 
+#: Brute-force sets hold fewer triangles than this: the closest-hit loop carries the index in a
+#: float32 (exact below 2^24).
+MAX_BRUTE_FORCE = 2**24
+
 #: Triangles per brute-force loop iteration (``fori_loop`` unroll factor; see the module notes).
 _UNROLL = 1
 
@@ -377,29 +378,21 @@ class TriangleSet(NamedTuple):
         dtype = frame.sz.dtype
         inf = jnp.asarray(jnp.inf, dtype)
         verts = self.sorted_vertices.astype(dtype)
-        t0 = jnp.asarray(t_max, dtype)
+        t_max = jnp.asarray(t_max, dtype)
 
-        def update(t, prim, ti, i):
-            # strictly closer, so ties keep the lowest index; the first hit may sit at t_max
-            closer = (ti < t) | ((prim < 0) & (ti < inf))
-            return jnp.minimum(ti, t), jnp.where(closer, i, prim)
-
-        def body(i, carry):
-            # Software-pipelined: iteration i tests triangle i against the ray's own t_max
-            # and folds in triangle i−1's distance, carried from the previous iteration. The
-            # test's only consumer is the loop carry, so XLA:CPU materialises it once; when it
-            # also fed (t, prim) directly, each output's fusion recomputed it (3 tests per
-            # triangle: optimization_barrier is dropped before fusion by this XLA).
-            t, prim, ti_prev = carry
+        def body(i, best):
+            # best = t + i·prim, ONE complex carry: the loop body is one kernel (see the
+            # module notes). Strictly closer, so ties keep the lowest index; the test itself
+            # rejects t > t_max, so the carry starts at (inf, −1).
             v = verts[i]
-            ti = jnp.where(self.valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t0), inf)
-            t, prim = update(t, prim, ti_prev, i - 1)
-            return t, prim, ti
+            ti = jnp.where(self.valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t_max),
+                           inf)
+            t = jnp.real(best)
+            return lax.complex(jnp.minimum(ti, t),
+                               jnp.where(ti < t, i.astype(dtype), jnp.imag(best)))
 
-        n = self.num_triangles
-        t, prim, ti = lax.fori_loop(0, n, body, (t0, jnp.int32(-1), inf), unroll=_UNROLL)
-        t, prim = update(t, prim, ti, n - 1)
-        return _finish_hit(self, frame, t, prim)
+        best = lax.fori_loop(0, self.num_triangles, body, lax.complex(inf, jnp.asarray(-1, dtype)))
+        return _finish_hit(self, frame, jnp.real(best), jnp.imag(best).astype(jnp.int32))
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
         """Whether one ray hits any triangle with ``0 < t ≤ t_max``; see :func:`any_hit`."""
@@ -435,13 +428,17 @@ def triangle_set(triangles) -> TriangleSet:
         A :class:`TriangleSet`. Zero-area triangles are kept (indices stay those of the input)
         but flagged invalid and never hit.
     Raises:
-        ValueError: wrong shape, no triangles, or a non-finite vertex (names the triangle).
+        ValueError: wrong shape, no triangles, 2^24 or more (the closest-hit loop carries
+            the index as a float32; build a BVH), or a non-finite vertex (names the triangle).
     """
     tri = np.asarray(triangles)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
         raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
     if tri.shape[0] == 0:
         raise ValueError("triangle set is empty")
+    if tri.shape[0] >= MAX_BRUTE_FORCE:
+        raise ValueError(f"{tri.shape[0]} triangles are too many to test by brute force "
+                         f"(at most {MAX_BRUTE_FORCE - 1}); use a BVH (accel='bvh')")
     if not np.issubdtype(tri.dtype, np.floating):
         tri = tri.astype(np.float32)
     bad = ~np.all(np.isfinite(tri), axis=(1, 2))

@@ -194,6 +194,30 @@ def test_closest_and_any_hit_agree_with_per_triangle_reference(x64, scene_rays):
     assert np.all(np.asarray(hit.ng)[~h] == 0) and np.all(np.asarray(hit.b1)[~h] == 0)
 
 
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_closest_hit_ties_go_to_the_lowest_index_and_t_max_is_inclusive(x64, dtype):
+    """The loop keeps the smallest t, ties to the lowest index (duplicates of one triangle at
+    indices 1 and 3 behind a far one at 0 and in front of one at 2), a hit exactly at t_max
+    counts, and one ulp less misses: the (t, prim) pair carried as one complex number must
+    keep both exact."""
+    if dtype == np.float64 and not x64:
+        pytest.skip("float64 needs x64")
+    tri = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], dtype)
+    tris = np.stack([tri + [0, 0, 5], tri + [0, 0, 2], tri + [0, 0, 3], tri + [0, 0, 2]])
+    ts = triangle_set(tris)
+    o = np.array([[0.1, 0.0, -1.0]] * 3, dtype)
+    d = np.array([[0.0, 0.0, 1.0]] * 3, dtype)
+    inf = np.inf
+    hit = _closest_batch(ts, o, d, np.array([inf, inf, inf], dtype))
+    np.testing.assert_array_equal(np.asarray(hit.prim), [1, 1, 1])
+    t = np.asarray(hit.t)[0]
+    assert t == 3  # z = 2 from z = −1 along +z
+    below = np.nextafter(t, dtype(0))
+    hit = _closest_batch(ts, o, d, np.array([t, below, 2.5], dtype))
+    np.testing.assert_array_equal(np.asarray(hit.prim), [1, -1, -1])
+    np.testing.assert_array_equal(np.asarray(hit.t), [t, inf, inf])
+
+
 def test_triangle_set_validation():
     tris = cornell_like().astype(np.float32)
     tris[5, 1, 2] = np.nan
@@ -206,6 +230,9 @@ def test_triangle_set_validation():
         triangle_set(np.zeros((4, 3)))
     with pytest.raises(ValueError, match="empty"):
         triangle_set(np.zeros((0, 3, 3)))
+    # the closest-hit loop carries the index as a float32: exact below 2^24 (a view, no copy)
+    with pytest.raises(ValueError, match="use a BVH"):
+        triangle_set(np.broadcast_to(np.float32(0), (2**24, 3, 3)))
     # degenerate triangles are kept (indices stable) but flagged and never hit
     deg = np.array([[[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[-1, -1, 0], [1, -1, 0], [0, 1, 0]]])
     ts = triangle_set(deg.astype(np.float32))
