@@ -24,8 +24,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from jaxrt.vecmath import normalize
-
 
 @dataclasses.dataclass(frozen=True)
 class Camera:
@@ -135,13 +133,16 @@ def generate_ray(camera: Camera, pixel_xy: Array, u: Array) -> tuple[Array, Arra
     the eye (3,) and the unit world direction (3,), in the dtype of ``u``.
     """
     dt = u.dtype
-    s = (pixel_xy.astype(dt) + u) / jnp.asarray([camera.width, camera.height], dt)
+    sx = (pixel_xy[0].astype(dt) + u[0]) / jnp.asarray(camera.width, dt)
+    sy = (pixel_xy[1].astype(dt) + u[1]) / jnp.asarray(camera.height, dt)
     t = camera.tan_half_fov.astype(dt)
-    d_cam = jnp.stack([camera.aspect.astype(dt) * t * (2 * s[0] - 1), t * (1 - 2 * s[1]),
-                       -jnp.ones_like(t)])
-    # camera → world: a combination of the frame's rows
-    direction = normalize(d_cam @ camera.frame.astype(dt))
-    return camera.eye.astype(dt), direction
+    cx, cy = camera.aspect.astype(dt) * t * (2 * sx - 1), t * (1 - 2 * sy)
+    # camera → world: cx·right + cy·up − back, per component (under vmap each is one
+    # contiguous vector; a (3,) @ (3, 3) product was a dot kernel and a stack of its own)
+    f = camera.frame.astype(dt)
+    d = [cx * f[0, k] + cy * f[1, k] - f[2, k] for k in range(3)]
+    inv = 1 / jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])  # ≥ 1: never zero
+    return camera.eye.astype(dt), jnp.stack([d[0] * inv, d[1] * inv, d[2] * inv])
 
 
 def project(camera: Camera, p: Array) -> tuple[Array, Array]:
