@@ -19,7 +19,7 @@ computed per channel from running sums. How the work is cut never changes the nu
   sequential chain over its sample indices 0, 1, 2, … wherever the passes cut it. Each sum
   is a float32 pair (hi, lo) advanced by an error-free TwoSum, and the host forms hi + lo in
   float64 (≤ 1e-12 relative to an exact sum of the same samples, tested; float32 alone was
-  off by 8e-6 at 2 048 spp). The pair costs no measurable throughput (benchmarks/README.md);
+  off by 8e-6 at 2 048 spp). The pair costs ~1 % per CPU-second (benchmarks/README.md);
 - every sample is a pure function of (seed, pixel, sample index), so the same seed gives a
   bit-identical image and standard error whatever the tile size, batch size, pass size,
   device count or process count.

@@ -150,6 +150,19 @@ def test_default_passes_are_sized_by_work_not_one_per_render(fake):
     assert r.passes == 4 and FakePass.calls == [(0, 32), (32, 32), (64, 32), (96, 32)]
 
 
+@pytest.mark.parametrize("spp_per_pass", [1, 5, 7])
+def test_the_driver_carries_the_sums_into_every_pass(fake, spp_per_pass):
+    """Each pass gets the sums the previous one returned (FakePass adds in float32 in sample
+    order, so only one chain over k = 0 … 11 gives the one-pass image bit for bit; sums
+    restarted per pass and added on the host differ in the last bits)."""
+    r = RENDER.render(fake, "mis", spp=12, spp_per_pass=spp_per_pass, progress=False)
+    assert FakePass.calls == [(k, min(spp_per_pass, 12 - k)) for k in range(0, 12, spp_per_pass)]
+    FakePass.calls = []
+    one = RENDER.render(fake, "mis", spp=12, spp_per_pass=12, progress=False)
+    assert np.array_equal(r.image, one.image) and np.array_equal(r.stderr, one.stderr)
+    assert r.spp == 12 and r.stderr.max() > 0
+
+
 def test_ctrl_c_stops_after_the_pass_and_returns_the_partial_image(fake):
     """SIGINT during the 3rd pass: that pass finishes, then RenderInterrupted carries the
     3 passes rendered, equal bit for bit to a 3-pass render."""
