@@ -83,16 +83,17 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
                 devices: int = 1, **params) -> tuple[list[dict], float]:
     """Render ``scene`` progressively and snapshot the image at each spp in ``levels``.
 
-    Uses the same machinery as :func:`jaxrt.render.render` (its ``_Pass``: same tiles, same
-    sample indices, so the image at ``n`` spp is bit-identical to ``render(..., spp=n)`` for the
-    independent and Sobol samplers) but compiles one pass of ``pass_spp`` samples and reuses
-    it for every level. Returns ``(rows, compile_seconds)``; each row has ``spp``, ``seconds``
-    (cumulative render time, compile excluded), ``image`` and ``stderr`` ((H, W, 3) float64).
+    Uses the same machinery as :func:`jaxrt.render.render` (its ``RenderPass``: same tiles,
+    same sample indices, the sums carried from pass to pass, so the image at ``n`` spp is
+    bit-identical to ``render(..., spp=n)`` for the independent and Sobol samplers) but
+    compiles one pass of ``pass_spp`` samples and reuses it for every level. Returns
+    ``(rows, compile_seconds)``; each row has ``spp``, ``seconds`` (cumulative render time,
+    compile excluded), ``image`` and ``stderr`` ((H, W, 3) float64).
     """
     import jax
 
     from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import LANES, RenderPass
+    from jaxrt.passes import LANES, RenderPass, Sums
     from jaxrt.render import _mean_and_error
 
 
@@ -108,17 +109,15 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
                 spp_total=spp_total, batch_size=batch_size)
     t_compile = run.compile(pass_spp)
     h, w = scene.height, scene.width
-    s1 = np.zeros((h * w, 3))
-    s2 = np.zeros((h * w, 3))
+    sums = run.zeros()
     rows, done, elapsed = [], 0, 0.0
     for level in levels:
         t0 = time.perf_counter()
         while done < level:
-            sums = run(done, pass_spp)
-            s1 += sums.s1
-            s2 += sums.s2
+            sums = run(sums, done, pass_spp)
             done += pass_spp
         elapsed += time.perf_counter() - t0
+        s1, s2, _ = Sums(*(a[: h * w] for a in run.host(sums))).totals()
         mean, err = _mean_and_error(s1, s2, done)
         rows.append({"spp": level, "seconds": elapsed, "image": mean.reshape(h, w, 3),
                      "stderr": err.reshape(h, w, 3),

@@ -72,7 +72,7 @@ def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
                      spp_total=spp, batch_size=64)
     t_compile = run.compile(spp)
     kernels = hlo_kernels(run.compiled[spp][0].as_text())
-    run(0, spp)  # warm-up
+    sums = run(run.zeros(), 0, spp)  # warm-up
     mi = mc.import_mitsuba(mc.DEFAULT_VARIANT)
     msc = mc.load_cornell(SIZE, SIZE, "box", 1.0, mc.DEFAULT_VARIANT)
     mc._render_once(mi, msc, spp, 0)  # warm-up (Dr.Jit kernels)
@@ -82,7 +82,7 @@ def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
         for name in ("jaxrt", "mitsuba") if r % 2 == 0 else ("mitsuba", "jaxrt"):
             w0, c0 = time.perf_counter(), time.process_time()
             if name == "jaxrt":
-                run(0, spp)
+                sums = run(sums, (r + 1) * spp, spp)
             else:
                 mc._render_once(mi, msc, spp, r + 1)
             times[name].append((time.perf_counter() - w0, time.process_time() - c0))

@@ -261,7 +261,7 @@ def _join_processes(args) -> None:
     import jax
 
     if args.process_id != 0:
-        # process 0 decides when to stop (Ctrl-C there stops everyone after the round); a
+        # process 0 decides when to stop (Ctrl-C there stops everyone after the pass); a
         # process quitting alone would leave the others waiting in a collective
         import signal
 
@@ -273,7 +273,7 @@ def _join_processes(args) -> None:
 def _launch(args) -> int:
     """``--processes N``: run N local processes of this command that render together (JAX's
     multi-process runtime, coordinator on localhost); process 0 prints and writes the files.
-    Ctrl-C is forwarded to process 0, which stops all after the round (or at once during
+    Ctrl-C is forwarded to process 0, which stops all after the pass (or at once during
     compilation); the first failure stops the others."""
     import signal
     import socket

@@ -1,12 +1,14 @@
 """The compiled render pass: running sums of camera samples over tiles of pixels.
 
 One pass renders ``count`` samples (indices ``[start, start + count)``) of every pixel of a
-contiguous range of tiles, and returns per-pixel running sums (Σ L, Σ L², non-finite count)
-from which :mod:`jaxrt.render` forms the image and its standard error. The per-sample
-program is :func:`jaxrt.estimators.camera_sample`; this module decides only how the lanes are
-laid out (tiles, steps of ``batch_size`` tiles, devices) and how the sums accumulate. Every
-sample is a pure function of (seed, pixel, sample index), so the layout never changes the
-numbers.
+contiguous range of tiles, and advances the per-pixel running sums (Σ L, Σ L², non-finite
+count) that it takes as its initial loop carry and returns; :mod:`jaxrt.render` forms the
+image and its standard error from them. The per-sample program is
+:func:`jaxrt.estimators.camera_sample`; this module decides only how the lanes are laid out
+(tiles, steps of ``batch_size`` tiles, devices, processes) and how the sums accumulate.
+Every sample is a pure function of (seed, pixel, sample index), and each pixel's sums are
+one sequential chain over its sample indices whatever the passes, so neither the layout nor
+the pass size changes the numbers.
 """
 
 from __future__ import annotations
@@ -30,17 +32,54 @@ LANES = 16
 
 
 class Sums(NamedTuple):
-    s1: jax.Array  # (P, 3) Σ L
-    s2: jax.Array  # (P, 3) Σ L²
+    """Per-pixel running sums, carried from pass to pass.
+
+    Σ L and Σ L² are each an unevaluated float32 pair ``hi + lo`` (a double-float32, ~48
+    bits of significand) advanced by an error-free TwoSum per sample, so the host gets
+    float64-grade sums without x64; ``bad`` counts the non-finite samples.
+    """
+
+    s1: jax.Array  # (P, 3) Σ L, high part
+    s1_lo: jax.Array  # (P, 3) Σ L, low part
+    s2: jax.Array  # (P, 3) Σ L², high part
+    s2_lo: jax.Array  # (P, 3) Σ L², low part
     bad: jax.Array  # (P,) int32 non-finite samples
+
+    def totals(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(Σ L, Σ L², non-finite count) on the host: hi + lo in float64, the count int64."""
+        wide = lambda hi, lo: np.asarray(hi, np.float64) + np.asarray(lo, np.float64)
+        return (wide(self.s1, self.s1_lo), wide(self.s2, self.s2_lo),
+                np.asarray(self.bad, np.int64))
+
+
+def zero_sums(shape: tuple, dtype) -> Sums:
+    """The sums before the first sample, for lanes of ``shape``."""
+    zero = jnp.zeros(shape + (3,), dtype)
+    return Sums(zero, zero, zero, zero, jnp.zeros(shape, jnp.int32))
+
+
+def two_sum(hi, lo, x):
+    """``(hi, lo) + x``, the rounding error of ``hi + x`` kept in ``lo``.
+
+    Knuth's TwoSum: s = hi + x rounds, and err = (hi − (s − b)) + (x − b) with b = s − hi is
+    its exact error, for any magnitudes (Knuth, TAOCP vol. 2, 4.2.2). XLA does not
+    reassociate floating point, so the error is not simplified away (tested: lo ≠ 0).
+    """
+    s = hi + x
+    b = s - hi
+    return s, lo + ((hi - (s - b)) + (x - b))
 
 
 def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, pixels,
-              start, count: int) -> Sums:
-    """Sums of ``count`` samples ``start … start+count−1`` of each pixel of ``pixels``.
+              start, count: int, sums: Sums) -> Sums:
+    """``sums`` advanced by samples ``start … start+count−1`` of each pixel of ``pixels``.
 
-    ``pixels``: int32 flat pixel indices of any shape (the lanes); the sums have that shape
+    ``pixels``: int32 flat pixel indices of any shape (the lanes); ``sums`` has that shape
     (plus a channel axis of 3 for Σ L and Σ L²).
+
+    One sequential chain per pixel over the sample indices: a pass takes the running sums
+    as its initial carry, so where passes cut the chain never changes the result, bit for
+    bit.
 
     A ``fori_loop`` over the samples whose body is the per-sample program vmapped over the
     lanes: ``camera_sample`` is traced and batched once. (Vmapping a per-pixel loop instead
@@ -51,101 +90,133 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     materialises it once; folded directly, its last stage (the MIS combination) was fused
     into each of the Σx, Σx² and non-finite kernels and computed three times.
     """
-    dtype = scene.triangles.dtype
     sample = lambda pixel, index: camera_sample(scene, est, pixel, index, seed, sampler,
                                                 spp_total)
     for _ in range(pixels.ndim):
         sample = jax.vmap(sample, (0, None))
 
-    def fold(acc, value):
-        s1, s2, bad = acc
+    def squared(value):
+        # L² is formed with the sample, not in the fold: there LLVM could contract it into
+        # the TwoSum's adds (fma), differently in and after the loop
+        return value, value * value
+
+    def fold(acc: Sums, previous) -> Sums:
+        value, square = previous
         # per component, not jnp.all over the channel axis: that is a reduction over a minor
         # axis of 3, a kernel of its own in every sample step
         ok = (jnp.isfinite(value[..., 0]) & jnp.isfinite(value[..., 1])
               & jnp.isfinite(value[..., 2]))
-        value = jnp.where(ok[..., None], value, 0)
-        return s1 + value, s2 + value * value, bad + (~ok).astype(jnp.int32)
+        s1, s1_lo = two_sum(acc.s1, acc.s1_lo, jnp.where(ok[..., None], value, 0))
+        s2, s2_lo = two_sum(acc.s2, acc.s2_lo, jnp.where(ok[..., None], square, 0))
+        return Sums(s1, s1_lo, s2, s2_lo, acc.bad + (~ok).astype(jnp.int32))
 
     def body(k, carry):
         acc, previous = carry
-        return fold(acc, previous), sample(pixels, start + k)
+        return fold(acc, previous), squared(sample(pixels, start + k))
 
-    zero = jnp.zeros(pixels.shape + (3,), dtype)
-    # the first fold adds an exact zero: the sums are those of the unpipelined loop, bit for bit
-    acc, last = lax.fori_loop(0, count, body,
-                              ((zero, zero, jnp.zeros(pixels.shape, jnp.int32)), zero))
-    return Sums(*fold(acc, last))
+    zero = jnp.zeros(pixels.shape + (3,), sums.s1.dtype)
+    # the first fold adds an exact zero (TwoSum of 0 leaves hi and lo as they are): the sums
+    # are those of the unpipelined loop, bit for bit
+    acc, last = lax.fori_loop(0, count, body, (sums, (zero, zero)))
+    return fold(acc, last)
+
+
+def step_layout(num_tiles: int, batch_size: int) -> tuple[int, int]:
+    """(tiles per step, steps) for ``num_tiles`` tiles run ``batch_size`` at a time."""
+    per_step = min(batch_size, num_tiles)
+    return per_step, -(-num_tiles // per_step)
 
 
 @partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
                                    "batch_size", "num_tiles"))
-def render_tiles(scene: Scene, seed, start, first_tile, *, est: Estimator, sampler: str,
-                  spp_total: int, count: int, tile_size: int, batch_size: int,
-                  num_tiles: int) -> Sums:
-    """Sums of ``count`` samples for the pixels of tiles ``[first_tile, first_tile+num_tiles)``.
+def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Estimator,
+                 sampler: str, spp_total: int, count: int, tile_size: int, batch_size: int,
+                 num_tiles: int) -> Sums:
+    """``sums`` advanced by ``count`` samples for the pixels of tiles ``[first_tile,
+    first_tile+num_tiles)``.
 
     The tiles run ``batch_size`` at a time (a ``lax.map`` over steps; the last step is
     padded). BVH scenes lay a step's lanes out flat, so that the BVH's batching rule sees all
     of its rays and compacts the slow ones (tile by tile it was 1.74× slower on a 1 922-triangle
     box); brute-force scenes as (tiles, pixels), which ran 1.1× faster than flat (paired).
 
-    Returns arrays with a leading axis of ``num_tiles · tile_size`` pixels; pixels past the
-    end of the image are computed as pixel 0 and must be discarded by the caller.
+    ``sums`` and the result have a leading axis of ``steps · per_step · tile_size`` lanes
+    (:func:`step_layout`: the padded last step included); lanes past the end of the image are
+    computed as pixel 0 and must be discarded by the caller.
     """
     num_pixels = scene.width * scene.height
-    per_step = min(batch_size, num_tiles)
-    steps = -(-num_tiles // per_step)
-    lanes = per_step * tile_size
+    per_step, steps = step_layout(num_tiles, batch_size)
+    lanes = (per_step, tile_size) if not isinstance(scene.geometry, BVH) else (
+        per_step * tile_size,)  # brute force: (tiles, pixels), vmapped twice (flat: 0.90×)
     pixels = (first_tile * tile_size
-              + jnp.arange(steps * lanes, dtype=jnp.int32)).reshape(steps, lanes)
+              + jnp.arange(steps * per_step * tile_size, dtype=jnp.int32))
 
-    if not isinstance(scene.geometry, BVH):
-        # brute force: lanes as (tiles, pixels), vmapped twice (flat ran 0.90×, paired)
-        pixels = pixels.reshape(steps, per_step, tile_size)
-
-    def step(pix):
+    def step(args):
+        pix, acc = args
         return lane_sums(scene, est, sampler, spp_total, seed,
-                         jnp.where(pix < num_pixels, pix, 0), start, count)
+                         jnp.where(pix < num_pixels, pix, 0), start, count, acc)
 
-    sums = lax.map(step, pixels)
-    return jax.tree.map(lambda a: a.reshape((steps * lanes,) + a.shape[pixels.ndim:])[
-        : num_tiles * tile_size], sums)
+    by_step = lambda a: a.reshape((steps,) + lanes + a.shape[1:])
+    out = lax.map(step, (by_step(pixels), jax.tree.map(by_step, sums)))
+    return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[1 + len(lanes):]), out)
 
 
 class RenderPass:
-    """One progressive pass, split over devices: each device runs the same compiled program
-    on its own contiguous range of tiles (so the image cannot depend on the device count)."""
+    """One progressive pass, split over processes and devices: each device of each process
+    runs the same compiled program on its own contiguous range of tiles, and carries its
+    pixels' sums from pass to pass (so the image depends on neither count).
 
-    def __init__(self, scene: Scene, seed: int, devices: list, tile_size: int, **static):
+    ``shard = (process index, process count)``: this process's devices take the tile ranges
+    ``index · len(devices) …`` of ``count · len(devices)`` equal ranges.
+    """
+
+    def __init__(self, scene: Scene, seed: int, devices: list, tile_size: int,
+                 shard: tuple[int, int] = (0, 1), **static):
         num_pixels = scene.width * scene.height
         total_tiles = math.ceil(num_pixels / tile_size)
-        self.per_device = math.ceil(total_tiles / len(devices))
+        rank, num_shards = shard
+        self.per_device = math.ceil(total_tiles / (num_shards * len(devices)))
+        per_step, steps = step_layout(self.per_device, static["batch_size"])
+        self.lanes = steps * per_step * tile_size  # carried per device (last step padded)
+        self.tile_size = tile_size
         self.num_pixels = num_pixels
+        self.dtype = scene.triangles.dtype
         self.devices = devices
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
         # the scene's arrays are copied to every device once, not once per pass
         self.scenes = [jax.device_put(scene, d) for d in devices]
         self.seeds = [jax.device_put(jnp.uint32(seed), d) for d in devices]
-        self.firsts = [jax.device_put(jnp.int32(k * self.per_device), d)
+        self.firsts = [jax.device_put(jnp.int32((rank * len(devices) + k) * self.per_device), d)
                        for k, d in enumerate(devices)]
         self.compiled: dict[int, list] = {}  # samples per pass -> one executable per device
+
+    def zeros(self) -> list[Sums]:
+        """The carry before the first pass: zero sums on every device."""
+        return [jax.device_put(zero_sums((self.lanes,), self.dtype), d) for d in self.devices]
 
     def compile(self, count: int) -> float:
         """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
         t0 = time.perf_counter()
         self.compiled[count] = [
-            render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, count=count,
-                                **self.static).compile(COMPILER_OPTIONS)
-            for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
-                                    strict=True)]
+            render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, z, count=count,
+                               **self.static).compile(COMPILER_OPTIONS)
+            for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
+                                       self.zeros(), strict=True)]
         return time.perf_counter() - t0
 
-    def __call__(self, start: int, count: int) -> Sums:
+    def __call__(self, sums: list[Sums], start: int, count: int) -> list[Sums]:
+        """The carry ``sums`` advanced by samples ``[start, start + count)`` (waits for it)."""
         if count not in self.compiled:
             self.compile(count)
-        # dispatch to every device first (asynchronously), then gather on the host
-        outs = [exe(sc, sd, jax.device_put(jnp.int32(start), d), f)
-                for exe, sc, sd, f, d in zip(self.compiled[count], self.scenes, self.seeds,
-                                             self.firsts, self.devices, strict=True)]
-        host = [jax.tree.map(np.asarray, o) for o in outs]
-        return jax.tree.map(lambda *xs: np.concatenate(xs)[: self.num_pixels], *host)
+        # dispatch to every device first (asynchronously), then wait for all
+        outs = [exe(sc, sd, jax.device_put(jnp.int32(start), d), f, acc)
+                for exe, sc, sd, f, d, acc in zip(self.compiled[count], self.scenes, self.seeds,
+                                                  self.firsts, self.devices, sums, strict=True)]
+        return jax.block_until_ready(outs)
+
+    def host(self, sums: list[Sums]) -> Sums:
+        """The carry as numpy arrays over this process's tile range (pixels in order, padded
+        past the image's end when the tiles do not fill the last range)."""
+        keep = self.per_device * self.tile_size
+        return Sums(*(np.concatenate([np.asarray(a)[:keep] for a in parts])
+                      for parts in zip(*sums, strict=True)))

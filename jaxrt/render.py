@@ -14,18 +14,23 @@ computed per channel from running sums. How the work is cut never changes the nu
   at any resolution; tiles are split over ``jax.devices()`` (each device runs the same
   program on its own range of tiles);
 - the sample loop is a ``lax.fori_loop``; a *pass* renders ``spp_per_pass`` samples of every
-  pixel with the sample indices ``[start, start + spp_per_pass)``, summed in float32, and
-  the passes' sums are added in float64 on the host;
+  pixel with the sample indices ``[start, start + spp_per_pass)``, taking each pixel's
+  running sums as its initial loop carry and returning them: a pixel's sums are one
+  sequential chain over its sample indices 0, 1, 2, … wherever the passes cut it. Each sum
+  is a float32 pair (hi, lo) advanced by an error-free TwoSum, and the host forms hi + lo in
+  float64 (≤ 1e-12 relative to an exact sum of the same samples, tested; float32 alone was
+  off by 8e-6 at 2 048 spp). The pair costs ~1 % per CPU-second (benchmarks/README.md);
 - every sample is a pure function of (seed, pixel, sample index), so the same seed gives a
-  bit-identical image whatever the tile size, batch size or device count.
+  bit-identical image and standard error whatever the tile size, batch size, pass size,
+  device count or process count.
 
 Pass size. By default a pass holds about :data:`SAMPLES_PER_PASS` samples (1.0 s measured on
 the 256² Cornell box, 2.1 M samples/s on one CPU core), so that the progress bar moves,
 the time budget and Ctrl-C take effect within a pass, and the error can be checked. The pass
 size is chosen from the image size and ``spp`` alone, never from a clock: it divides
-``spp`` (one compiled program), and the same arguments give the same image, bit for bit,
-however long the passes take. An explicit ``spp_per_pass`` changes the float32
-partial sums, hence the last bits (≤ 1e-5 relative, tested).
+``spp`` (one compiled program; a shorter last pass compiles a second one). An explicit
+``spp_per_pass`` changes the pace, never the numbers: 12 spp in passes of 1, 3, 4, 5 or 12
+give the same image and standard error, bit for bit (tested).
 
 Stopping: after ``spp`` samples, or before a pass that would end past ``time_budget``
 seconds of rendering, or once the error target is met, or at Ctrl-C (SIGINT): the pass
@@ -39,10 +44,11 @@ progress bar (tqdm) and can stop at a time budget or at a target relative error.
 Several devices: with ``devices=None`` all of this process's devices are used (each runs
 the same program on its own range of tiles). Several processes (``jax.distributed.initialize()``
 first in every one, e.g. ``jaxrt render --processes N`` on one machine or one process per
-host): the processes take whole passes in turn — pass ``i`` goes to process ``i mod N`` — and
-after each round every process receives every pass's sums (``process_allgather``) and adds
-them in pass order, so the image is bit for bit that of one process with the same pass size;
-process 0 decides when to stop and broadcasts it.
+host) split the tiles as devices do: the image's tiles are cut into N × devices contiguous
+ranges, process q's devices take the q-th N-th of them, and every process renders every
+pass of its own tiles, carrying its own pixels' sums. Where the error target is checked
+and at the end, every process receives every process's sums (``process_allgather``), so the
+image is bit for bit that of one process; process 0 decides when to stop and broadcasts it.
 """
 
 from __future__ import annotations
@@ -135,10 +141,11 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
             ``estimator_params`` (light_samples, bsdf_samples, heuristic, light_prob) refine it.
         spp: samples per pixel (the maximum when a time budget or target error is given).
             Default: 16, or unbounded when a time budget or target error is given.
-        seed: the random seed; the same seed gives the same image, bit for bit.
+        seed: the random seed; the same seed gives the same image, bit for bit (whatever
+            the pass size, tiles, devices and processes).
         sampler: "independent" | "stratified" | "sobol" sample stream.
         spp_per_pass: samples per progressive pass (default: :func:`default_spp_per_pass`,
-            about a second of work per pass).
+            about a second of work per pass); it never changes the image.
         time_budget: seconds of rendering (compilation excluded); no pass starts that would
             end past it, judged from the last pass's time (at least one pass runs).
         target_error: stop once the mean relative standard error falls below this (checked
@@ -195,8 +202,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
 
     # a stratified stream needs its number of strata: one stratification per pass if unbounded
     spp_total = int(spp) if spp is not None else spp_per_pass
-    run = RenderPass(scene, seed, local[:num_devices], tile_size, est=est,
-                     sampler=sampler, spp_total=spp_total, batch_size=int(batch_size))
+    run = RenderPass(scene, seed, local[:num_devices], tile_size, shard=(rank, num_procs),
+                     est=est, sampler=sampler, spp_total=spp_total, batch_size=int(batch_size))
     num_passes = None if spp is None else math.ceil(spp / spp_per_pass)
     show = (progress if progress is not None else num_passes != 1) and rank == 0
     t0 = time.perf_counter()
@@ -210,37 +217,23 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
         print(f"jaxrt: compiled in {t_compile:.1f} s", file=sys.stderr, flush=True)
 
     bar = _progress_bar(spp, show)
-    s1 = s2 = bad = None
+    sums = run.zeros()  # the running sums of this process's tiles, carried through the passes
     done, passes, stopped_by, bar_done = 0, 0, None, 0
     t_start = time.perf_counter()
     last_pass = 0.0
-    def samples_of(i: int) -> int:
-        """Samples per pixel of pass i (passes are spp_per_pass long; 0 past the end)."""
-        return spp_per_pass if spp is None else max(0, min(spp_per_pass, spp - i * spp_per_pass))
-
     with _sigint_flag(stop) as interrupted:
         while not interrupted.is_set() and (spp is None or done < spp):
-            # a round: process q renders pass `passes + q` (one process: one pass per round)
-            mine = passes + rank
-            count = samples_of(mine)
+            count = spp_per_pass if spp is None else min(spp_per_pass, spp - done)
             t_pass = time.perf_counter()
             # a shorter last pass compiles its own program (count is static)
-            sums = run(mine * spp_per_pass, count) if count else None
-            for part in _gather(sums, h * w, num_procs):
-                count_k = samples_of(passes)  # in pass order, whoever rendered it
-                if not count_k:  # idle processes of the last round
-                    break
-                if s1 is None:
-                    s1, s2, bad = (part.s1.astype(np.float64), part.s2.astype(np.float64),
-                                   part.bad.astype(np.int64))
-                else:
-                    s1 += part.s1
-                    s2 += part.s2
-                    bad += part.bad
-                done += count_k
-                passes += 1
-                if on_pass is not None:
-                    on_pass(done)
+            sums = run(sums, done, count)
+            done += count
+            passes += 1
+            if on_pass is not None:
+                on_pass(done)
+            # every process takes part in the gather, whatever its own clock says
+            check_error = target_error is not None and done >= 16
+            image_sums = _image_sums(run, sums, num_procs) if check_error else None
             now = time.perf_counter()
             last_pass, elapsed = now - t_pass, now - t_start
             rate = done * h * w / max(elapsed, 1e-12)
@@ -254,8 +247,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
                 if elapsed + last_pass > time_budget:
                     reason = "time_budget"
                 left = min(math.inf if left is None else left, time_budget - elapsed)
-            if reason is None and target_error is not None and done >= 16:
-                rel = _error_for_stopping(s1, s2, done)
+            if reason is None and check_error:
+                rel = _error_for_stopping(*image_sums[:2], done)
                 bar.postfix(rel_err=f"{rel:.4f}")
                 if rel <= target_error:
                     reason = "target_error"
@@ -274,7 +267,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
         stopped_by = "interrupted"
     t_render = time.perf_counter() - t_start
     result = None
-    if done:
+    if done:  # every process gets here with the same done (process 0 decided)
+        s1, s2, bad = _image_sums(run, sums, num_procs)
         mean, err = _mean_and_error(s1, s2, done)
         timings = {"compile": t_compile, "render": t_render, "total": time.perf_counter() - t0,
                    "last_pass": last_pass, "samples_per_s": done * h * w / max(t_render, 1e-12)}
@@ -290,17 +284,16 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
 _STOP_REASONS = (None, "spp", "time_budget", "target_error", "interrupted")
 
 
-def _gather(sums, num_pixels: int, num_procs: int) -> list:
-    """Every process's sums of this round, in process order (an idle process sends zeros)."""
-    if num_procs == 1:
-        return [sums] if sums is not None else []
-    from jax.experimental import multihost_utils
+def _image_sums(run: RenderPass, sums, num_procs: int) -> tuple:
+    """(Σ L, Σ L², non-finite count) of every pixel of the image (float64, int64), on every
+    process: each process's tile range in process order (``process_allgather``)."""
+    mine = run.host(sums)
+    if num_procs > 1:
+        from jax.experimental import multihost_utils
 
-    if sums is None:
-        sums = Sums(np.zeros((num_pixels, 3), np.float32), np.zeros((num_pixels, 3), np.float32),
-                    np.zeros(num_pixels, np.int32))
-    both = multihost_utils.process_allgather(tuple(np.asarray(a) for a in sums))
-    return [Sums(*(a[q] for a in both)) for q in range(num_procs)]
+        every = multihost_utils.process_allgather(tuple(mine))  # (processes, pixels, ...)
+        mine = Sums(*(a.reshape((-1,) + a.shape[2:]) for a in every))
+    return Sums(*(a[: run.num_pixels] for a in mine)).totals()
 
 
 def _agree(reason: str | None, num_procs: int) -> str | None:

@@ -1,6 +1,6 @@
 """``jaxrt render --processes 2``: two local CPU processes (JAX's multi-process runtime) render
-the image of one process, bit for bit, whatever the rounds (an uneven last round included)
-and whoever decides to stop (a time budget is decided by process 0)."""
+the image of one process, bit for bit, whatever the split of the tiles (an uneven one
+included), the pass size and whoever decides to stop (a time budget is decided by process 0)."""
 
 from __future__ import annotations
 
@@ -24,11 +24,14 @@ def _run(args) -> str:
     return proc.stdout
 
 
-@pytest.mark.slow  # ~25 s: three compiles in subprocesses
+@pytest.mark.slow  # ~30 s: four compiles in subprocesses
 def test_two_processes_equal_one_bit_for_bit(tmp_path):
-    # 3 passes of 2 spp: round 1 = passes 0, 1; round 2 = pass 2 and an idle process
-    _run(["--spp", "6", "--processes", "2", "-o", str(tmp_path / "two.exr")])
-    _run(["--spp", "6", "-o", str(tmp_path / "one.exr")])
+    # 24 × 24 pixels = 3 tiles of 256: process 0 renders tiles 0 and 1, process 1 tile 2 and
+    # a tile past the image; in passes of 4 and 2 spp, against one process in one pass of 6
+    size = ["--width", "24", "--height", "24"]
+    _run([*size, "--spp", "6", "--spp-per-pass", "4", "--processes", "2",
+          "-o", str(tmp_path / "two.exr")])
+    _run([*size, "--spp", "6", "--spp-per-pass", "6", "-o", str(tmp_path / "one.exr")])
     two, two_extra = read_exr(tmp_path / "two.exr")
     one, one_extra = read_exr(tmp_path / "one.exr")
     assert np.array_equal(two, one) and np.array_equal(two_extra["stderr"], one_extra["stderr"])
@@ -56,7 +59,7 @@ def test_multi_host_options_are_checked(capsys):
 @pytest.mark.slow  # ~20 s
 def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     """SIGINT to the launcher reaches each process once; process 0 decides, all stop after
-    the round, process 0 writes the image so far (its spp in the header), exit status 130."""
+    the pass, process 0 writes the image so far (its spp in the header), exit status 130."""
     import os
     import signal
     import threading
@@ -76,7 +79,7 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
     deadline = time.monotonic() + 180
-    while b"4000/100000" not in err:  # a first round (2 passes of 2000 spp) is done
+    while b"2000/100000" not in err:  # a first pass of 2000 spp (each process half the tiles)
         assert time.monotonic() < deadline and proc.poll() is None, err.decode()[-2000:]
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
@@ -86,11 +89,11 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     reader.join(10)
     text = err.decode(errors="replace")
     assert rc == 130, text[-2000:]
-    assert elapsed < 5, elapsed  # a round of two 2000-spp passes (~1.5 s) and the write
+    assert elapsed < 5, elapsed  # a 2000-spp pass (~0.8 s) and the write
     last = text.strip().splitlines()[-1]
     m = re.fullmatch(r"jaxrt: interrupted: wrote (\d+) spp to (\S+)", last)
     assert m, last
-    assert int(m.group(1)) % 4000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
+    assert int(m.group(1)) % 2000 == 0 and read_exr_attributes(out)["spp"] == int(m.group(1))
 
 
 @pytest.mark.slow  # ~10 s

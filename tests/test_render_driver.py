@@ -30,31 +30,38 @@ def box16():
 
 class FakePass:
     """Stands for :class:`jaxrt.passes.RenderPass`: sample k of pixel p is
-    ``values[p]`` + noise · ``noisy[p]``, with noise from a generator seeded by k."""
+    ``values[p]`` + noise · ``noisy[p]``, with noise from a generator seeded by k; the carry
+    is a :class:`Sums` of numpy arrays (float32 sums, their low parts zero)."""
 
     calls: list = []
     on_call = None
 
-    def __init__(self, scene, seed, devices, tile_size, **static):
-        self.n = scene.width * scene.height
+    def __init__(self, scene, seed, devices, tile_size, shard=(0, 1), **static):
+        self.n = self.num_pixels = scene.width * scene.height
         self.values = np.linspace(0.5, 1.5, self.n)
         self.noisy = np.arange(self.n) % 10 == 0  # 10 % of the pixels vary, 90 % are constant
 
     def compile(self, count):
         return 0.0
 
-    def __call__(self, start, count):
+    def zeros(self):
+        zero = np.zeros((self.n, 3), np.float32)
+        return Sums(zero, zero, zero, zero, np.zeros(self.n, np.int32))
+
+    def host(self, sums):
+        return sums
+
+    def __call__(self, sums, start, count):
         FakePass.calls.append((start, count))
         if FakePass.on_call is not None:
             FakePass.on_call(len(FakePass.calls))
-        s1 = np.zeros((self.n, 3), np.float32)
-        s2 = np.zeros((self.n, 3), np.float32)
+        s1, s2 = sums.s1.copy(), sums.s2.copy()
         for k in range(start, start + count):
             noise = np.random.default_rng(k).normal(size=self.n)
             v = (self.values + np.where(self.noisy, noise, 0.0)).astype(np.float32)[:, None]
             s1 += v
             s2 += v * v
-        return Sums(s1, s2, np.zeros(self.n, np.int32))
+        return sums._replace(s1=s1, s2=s2)
 
 
 class TinyScene(NamedTuple):
@@ -134,14 +141,26 @@ def test_default_passes_are_sized_by_work_not_one_per_render(fake):
     """128 spp of a 256×256 image: 4 passes of 32 (it was one pass of 128, so the bar sat at
     0/1 for the whole render)."""
     big = TinyScene(width=256, height=256)
-    FakePass.__call__, saved = (lambda self, start, count: (FakePass.calls.append(
-        (start, count)), Sums(*(np.zeros((self.n, 3), np.float32),) * 2,
-                              np.zeros(self.n, np.int32)))[1]), FakePass.__call__
+    FakePass.__call__, saved = (lambda self, sums, start, count: (FakePass.calls.append(
+        (start, count)), sums)[1]), FakePass.__call__
     try:
         r = RENDER.render(big, "mis", spp=128, progress=False)
     finally:
         FakePass.__call__ = saved
     assert r.passes == 4 and FakePass.calls == [(0, 32), (32, 32), (64, 32), (96, 32)]
+
+
+@pytest.mark.parametrize("spp_per_pass", [1, 5, 7])
+def test_the_driver_carries_the_sums_into_every_pass(fake, spp_per_pass):
+    """Each pass gets the sums the previous one returned (FakePass adds in float32 in sample
+    order, so only one chain over k = 0 … 11 gives the one-pass image bit for bit; sums
+    restarted per pass and added on the host differ in the last bits)."""
+    r = RENDER.render(fake, "mis", spp=12, spp_per_pass=spp_per_pass, progress=False)
+    assert FakePass.calls == [(k, min(spp_per_pass, 12 - k)) for k in range(0, 12, spp_per_pass)]
+    FakePass.calls = []
+    one = RENDER.render(fake, "mis", spp=12, spp_per_pass=12, progress=False)
+    assert np.array_equal(r.image, one.image) and np.array_equal(r.stderr, one.stderr)
+    assert r.spp == 12 and r.stderr.max() > 0
 
 
 def test_ctrl_c_stops_after_the_pass_and_returns_the_partial_image(fake):
