@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxrt import program_cache
 from jaxrt.bvh import BVH
 from jaxrt.estimators import COMPILER_OPTIONS, Estimator, camera_sample
 from jaxrt.scene import Scene
@@ -133,12 +134,17 @@ class RenderPass:
     def compile(self, count: int) -> float:
         """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
         t0 = time.perf_counter()
-        self.compiled[count] = [
-            render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, count=count,
-                                **self.static).compile(COMPILER_OPTIONS)
-            for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
-                                    strict=True)]
+        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing)
+        self.compiled[count] = [program_cache.compile_cached(*job) for job in self.jobs(count)]
         return time.perf_counter() - t0
+
+    def jobs(self, count: int) -> list:
+        """``(function, arguments, static arguments, compiler options, device)`` of the
+        program each device runs for ``count`` samples per pixel."""
+        return [(render_tiles, (sc, sd, jax.device_put(jnp.int32(0), d), f),
+                 dict(count=count, **self.static), COMPILER_OPTIONS, d)
+                for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
+                                        strict=True)]
 
     def __call__(self, start: int, count: int) -> Sums:
         if count not in self.compiled:
