@@ -126,8 +126,8 @@ class RenderPass:
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
         # the scene's arrays are copied to every device once, not once per pass
         self.scenes = [jax.device_put(scene, d) for d in devices]
-        self.seeds = [jax.device_put(jnp.uint32(seed), d) for d in devices]
-        self.firsts = [jax.device_put(jnp.int32(k * self.per_device), d)
+        self.seeds = [jax.device_put(np.uint32(seed), d) for d in devices]
+        self.firsts = [jax.device_put(np.int32(k * self.per_device), d)
                        for k, d in enumerate(devices)]
         self.compiled: dict[int, list] = {}  # samples per pass -> one executable per device
 
@@ -141,7 +141,7 @@ class RenderPass:
     def jobs(self, count: int) -> list:
         """``(function, arguments, static arguments, compiler options, device)`` of the
         program each device runs for ``count`` samples per pixel."""
-        return [(render_tiles, (sc, sd, jax.device_put(jnp.int32(0), d), f),
+        return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f),
                  dict(count=count, **self.static), COMPILER_OPTIONS, d)
                 for sc, sd, f, d in zip(self.scenes, self.seeds, self.firsts, self.devices,
                                         strict=True)]
@@ -150,7 +150,7 @@ class RenderPass:
         if count not in self.compiled:
             self.compile(count)
         # dispatch to every device first (asynchronously), then gather on the host
-        outs = [exe(sc, sd, jax.device_put(jnp.int32(start), d), f)
+        outs = [exe(sc, sd, jax.device_put(np.int32(start), d), f)
                 for exe, sc, sd, f, d in zip(self.compiled[count], self.scenes, self.seeds,
                                              self.firsts, self.devices, strict=True)]
         host = [jax.tree.map(np.asarray, o) for o in outs]
