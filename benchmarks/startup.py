@@ -11,7 +11,8 @@ Every figure comes from a fresh interpreter (``subprocess``), as a user meets it
   (``XDG_CACHE_HOME``): the second run's wall time from process start to exit, and the
   compile seconds it prints (the second reads its pass from jaxrt's program cache);
 - **compile per estimator**: trace, lower and XLA compile of the 256² pass (32 spp per pass,
-  as ``render`` picks for 64 spp), each estimator in its own process, wall and CPU seconds.
+  as ``render`` picks for 64 spp), each estimator in its own process, wall and CPU seconds;
+  and the same pass read from :mod:`jaxrt.program_cache` by a second process.
 
 The machine is shared: each figure is the median of ``--repeat`` runs, printed with the load
 average (``os.getloadavg``) before and after.
@@ -68,8 +69,34 @@ print(" ".join(f"{b[0] - a[0]:.4f} {b[1] - a[1]:.4f}" for a, b in zip(t, t[1:]))
 """
 
 
+#: Subprocesses run here, so that ``-c``/``-m`` do not import a ``jaxrt`` from the current
+#: directory instead of :data:`TREE`'s.
+_NEUTRAL = tempfile.gettempdir()
+#: The tree whose ``jaxrt`` package is measured (``--jaxrt``: e.g. an older checkout, to
+#: compare before and after in the same period of machine load).
+TREE = ROOT
+
+
+CACHED = """
+import sys, time
+import jax
+from jaxrt import program_cache, scenes
+from jaxrt.estimators import make_estimator, prepare_scene
+from jaxrt.passes import RenderPass
+from jaxrt.render import default_spp_per_pass
+program_cache.set_directory(sys.argv[2])
+est = make_estimator(sys.argv[1])
+scene = prepare_scene(scenes.cornell_box(256, 256), est)
+run = RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
+                 spp_total=64, batch_size=64)
+c0 = time.process_time()
+wall = run.compile(default_spp_per_pass(256 * 256, 64))
+print(wall, time.process_time() - c0, program_cache.STATS["hits"])
+"""
+
+
 def _env(**extra) -> dict:
-    env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+    env = dict(os.environ, PYTHONPATH=str(TREE) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                **extra)
     return env
 
@@ -91,6 +118,7 @@ def first_frame(repeat: int = 3) -> dict:
     for _ in range(repeat):
         cpu = _child_cpu()
         out = subprocess.run([sys.executable, "-c", FIRST_FRAME], capture_output=True,
+                             cwd=_NEUTRAL,
                              text=True, check=True, timeout=600,
                              env=_env(JAX_ENABLE_COMPILATION_CACHE="false",
                                       JAXRT_NO_COMPILE_CACHE="1"))
@@ -113,7 +141,8 @@ def second_run(repeat: int = 3) -> dict:
             env.pop("JAXRT_NO_COMPILE_CACHE", None)
             for k in range(2):
                 t0, cpu = time.perf_counter(), _child_cpu()
-                out = subprocess.run(argv, capture_output=True, text=True, check=True,
+                out = subprocess.run(argv, capture_output=True, cwd=_NEUTRAL, text=True,
+                                     check=True,
                                      timeout=600, env=env)
                 wall = time.perf_counter() - t0
                 compile_s = float(re.search(r"\+([0-9.]+) s compile", out.stdout).group(1))
@@ -135,6 +164,7 @@ def compile_times(repeat: int = 1, estimators=ESTIMATORS) -> dict:
         runs = []
         for _ in range(repeat):
             out = subprocess.run([sys.executable, "-c", COMPILE, name], capture_output=True,
+                                 cwd=_NEUTRAL,
                                  text=True, check=True, timeout=600,
                                  env=_env(JAX_ENABLE_COMPILATION_CACHE="false"))
             runs.append([float(x) for x in out.stdout.split()[-6:]])
@@ -142,6 +172,20 @@ def compile_times(repeat: int = 1, estimators=ESTIMATORS) -> dict:
         res[name] = {"trace": med[0], "lower": med[2], "xla": med[4],
                      "total": med[0] + med[2] + med[4],
                      "total_cpu": med[1] + med[3] + med[5]}
+        # a second run: the pass read from the program cache (the first run fills it)
+        hits = []
+        with tempfile.TemporaryDirectory() as tmp:
+            for k in range(1 + repeat):
+                out = subprocess.run([sys.executable, "-c", CACHED, name, tmp],
+                                     capture_output=True, cwd=_NEUTRAL, text=True,
+                                     check=True, timeout=600,
+                                     env=_env(JAX_ENABLE_COMPILATION_CACHE="false"))
+                wall, cpu, hit = out.stdout.split()[-3:]
+                if k:
+                    assert hit == "1", out.stdout
+                    hits.append((float(wall), float(cpu)))
+        res[name]["cached"] = statistics.median(h[0] for h in hits)
+        res[name]["cached_cpu"] = statistics.median(h[1] for h in hits)
     return res
 
 
@@ -150,7 +194,11 @@ def main(argv=None) -> dict:
     p.add_argument("--only", choices=("first", "second", "compile"), default=None)
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--json", default=None, help="also write the figures here")
+    p.add_argument("--jaxrt", default=None, metavar="DIR",
+                   help="measure the jaxrt package in DIR (default: this checkout)")
     a = p.parse_args(argv)
+    global TREE
+    TREE = Path(a.jaxrt).resolve() if a.jaxrt else ROOT
     out = {}
     if a.only in (None, "first"):
         print(_load(), flush=True)
@@ -168,10 +216,12 @@ def main(argv=None) -> dict:
               f"walls {s['walls']}; {_load()}", flush=True)
     if a.only in (None, "compile"):
         out["compile"] = compile_times(a.repeat)
-        print("| estimator | trace | lower | XLA | total (wall) | total CPU |")
+        print("| estimator | trace | lower | XLA | total (wall) | total CPU | "
+              "program cache hit (wall / CPU) |")
         for name, c in out["compile"].items():
             print(f"| {name} | {c['trace']:.2f} | {c['lower']:.2f} | {c['xla']:.2f} | "
-                  f"{c['total']:.2f} | {c['total_cpu']:.2f} |")
+                  f"{c['total']:.2f} | {c['total_cpu']:.2f} | {c['cached']:.2f} / "
+                  f"{c['cached_cpu']:.2f} |")
         print(_load(), flush=True)
     if a.json:
         Path(a.json).write_text(json.dumps(out, indent=1))
