@@ -50,6 +50,7 @@ from jaxrt.intersect import (
     triangle_set,
     winner_hit,
 )
+from jaxrt.vecmath import device_array
 
 
 @jax.tree_util.register_pytree_node_class
@@ -117,18 +118,20 @@ def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
     dtype = jnp.result_type(float)
     # Normals and zero-area flags exactly as the brute-force TriangleSet computes them.
     tset = triangle_set(flat.triangles)
-    tri = jnp.asarray(tset.vertices, dtype)
+    # on the host, then one copy per array (jnp operations would compile a program each)
+    tri = np.asarray(tset.vertices).astype(dtype)
     # Zero-area triangles never hit: collapse them to a point, whose determinant is exactly
     # 0 in the watertight test, instead of testing a flag per triangle.
-    tri = jnp.where(tset.valid[:, None, None], tri, tri[:, :1])
-    tri_sorted = jnp.asarray(canonical_vertices(np.asarray(tri)), dtype)
+    tri = np.where(np.asarray(tset.valid)[:, None, None], tri, tri[:, :1])
+    tri_sorted = canonical_vertices(tri)
     box = np.concatenate([flat.box_lo, flat.box_hi], axis=1)
-    as_int = lambda a: jnp.asarray(a, jnp.int32)
+    as_int = lambda a: device_array(a, jnp.int32)
     return BVH(
-        tuple(jnp.asarray(box[:, k], dtype) for k in range(6)),
+        tuple(device_array(box[:, k], dtype) for k in range(6)),
         as_int(flat.skip), as_int(flat.leaf_start), as_int(flat.leaf_count),
-        tuple(tri.reshape(-1, 9).T), tuple(tri_sorted.reshape(-1, 9).T), as_int(flat.prim),
-        jnp.asarray(tset.ng, dtype), leaf_size,
+        tuple(device_array(c) for c in tri.reshape(-1, 9).T),
+        tuple(device_array(c) for c in tri_sorted.reshape(-1, 9).T), as_int(flat.prim),
+        device_array(tset.ng, dtype), leaf_size,
     )
 
 

@@ -24,6 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxrt.vecmath import device_array
+
 
 @dataclasses.dataclass(frozen=True)
 class Camera:
@@ -117,10 +119,10 @@ def look_at(eye, target, up, fov_deg, width: int, height: int, fov_axis: str = "
     right = side / np.linalg.norm(side)
     frame = np.stack([right, np.cross(back, right), back])
     dt = jax.dtypes.canonicalize_dtype(jnp.float64)
-    return Camera(eye=jnp.asarray(eye, dt), frame=jnp.asarray(frame, dt),
-                  tan_half_fov=jnp.asarray(tan_half_fov_y(np.tan(np.radians(fov) / 2),
-                                                          fov_axis, width / height), dt),
-                  aspect=jnp.asarray(width / height, dt), width=width, height=height)
+    return Camera(eye=device_array(eye, dt), frame=device_array(frame, dt),
+                  tan_half_fov=device_array(tan_half_fov_y(np.tan(np.radians(fov) / 2),
+                                                           fov_axis, width / height), dt),
+                  aspect=device_array(width / height, dt), width=width, height=height)
 
 
 def generate_ray(camera: Camera, pixel_xy: Array, u: Array) -> tuple[Array, Array]:

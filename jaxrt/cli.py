@@ -2,9 +2,11 @@
 scenes, draw the sampling-warp gallery.
 
 Everything that can be checked without JAX (arguments, output paths) is checked first, so a
-mistyped path fails in a fraction of a second instead of after the render. JAX's persistent
-compilation cache is switched on here, for the command only (``--no-compile-cache`` or
-``JAXRT_NO_COMPILE_CACHE=1`` turn it off); importing the library never touches it.
+mistyped path fails in a fraction of a second instead of after the render. The caches of
+compiled programs are switched on here, for the command only (``--no-compile-cache`` or
+``JAXRT_NO_COMPILE_CACHE=1`` turn them off): ``render`` keeps its compiled passes in
+:mod:`jaxrt.program_cache`, ``gallery`` uses JAX's persistent compilation cache; importing the
+library never touches either.
 """
 
 from __future__ import annotations
@@ -93,30 +95,41 @@ def _check_output(path: str, suffix: str, option: str, force: bool) -> Path:
     return p
 
 
-#: Programs read from the persistent compilation cache in this process, and the compile
-#: seconds they saved (from JAX's monitoring events).
-CACHE_HITS = {"programs": 0, "saved": 0.0}
-
-
-def _count_cache_hit(event: str, seconds: float, **kwargs) -> None:
-    if event == "/jax/compilation_cache/compile_time_saved_sec":
-        CACHE_HITS["programs"] += 1
-        CACHE_HITS["saved"] += seconds
-
-
-def _enable_compile_cache(args) -> str | None:
-    """JAX's persistent compilation cache in the user's cache directory, unless disabled."""
+def _cache_base(args) -> str | None:
+    """The user's cache directory for jaxrt, or None when the caches are turned off."""
     if getattr(args, "no_compile_cache", False) or os.environ.get("JAXRT_NO_COMPILE_CACHE",
                                                                   "") not in ("", "0"):
         return None
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    path = os.path.join(base, "jaxrt", "jax")
+    return os.path.join(base, "jaxrt")
+
+
+def _enable_program_cache(args) -> str | None:
+    """jaxrt's cache of compiled render passes (:mod:`jaxrt.program_cache`), unless disabled.
+
+    ``jaxrt render`` uses it *instead of* JAX's persistent compilation cache: a hit skips
+    tracing as well as XLA, and a program is stored only when freshly compiled (one read
+    back from JAX's cache cannot be serialised again with this jaxlib)."""
+    base = _cache_base(args)
+    if base is None:
+        return None
+    from jaxrt import program_cache
+
+    program_cache.set_directory(os.path.join(base, "programs"))
+    return program_cache.DIRECTORY
+
+
+def _enable_compile_cache(args) -> str | None:
+    """JAX's persistent compilation cache in the user's cache directory, unless disabled."""
+    base = _cache_base(args)
+    if base is None:
+        return None
+    path = os.path.join(base, "jax")
     import jax
 
     jax.config.update("jax_compilation_cache_dir", path)
-    # render programs compile in seconds; the default threshold (1 s) would skip small images
+    # the gallery's programs compile in a fraction of a second each
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-    jax.monitoring.register_event_duration_secs_listener(_count_cache_hit)
     return path
 
 
@@ -177,7 +190,7 @@ def _render(args) -> int:
     spp = args.spp if args.spp is not None else (None if adaptive else DEFAULT_SPP)
     if args.num_processes > 1:
         _join_processes(args)
-    _enable_compile_cache(args)
+    _enable_program_cache(args)
     scene = _load(args)
     if args.process_id == 0:
         print(scene.summary(), flush=True)
@@ -243,8 +256,10 @@ def _render_interruptibly(args, scene, spp, params) -> int:
         raise e
     result = box["result"]
     t = result.timings
-    cached = (f", {CACHE_HITS['programs']} program(s) from the compile cache saved "
-              f"{CACHE_HITS['saved']:.2f} s" if CACHE_HITS["programs"] else "")
+    from jaxrt import program_cache
+
+    hits = program_cache.STATS["hits"]
+    cached = f", {hits} program(s) read from the program cache" if hits else ""
     print(f"{result.spp} spp in {t['render']:.2f} s (+{t['compile']:.2f} s compile{cached}): "
           f"{t['samples_per_s'] / 1e6:.2f} M samples/s, mean relative error "
           f"{result.relative_error:.4f}, stopped by {result.stopped_by}"
@@ -452,9 +467,9 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("-f", "--force", action="store_true",
                    help="replace read-only output files")
     r.add_argument("--no-compile-cache", action="store_true",
-                   help="do not use JAX's persistent compilation cache (also: "
-                        "JAXRT_NO_COMPILE_CACHE=1); it lives in $XDG_CACHE_HOME/jaxrt/jax "
-                        "or ~/.cache/jaxrt/jax")
+                   help="do not keep or read compiled render passes (also: "
+                        "JAXRT_NO_COMPILE_CACHE=1); they live in $XDG_CACHE_HOME/jaxrt/"
+                        "programs or ~/.cache/jaxrt/programs")
     r.add_argument("--spp-per-pass", type=_positive(int), default=None, metavar="N",
                    help="samples per pixel per pass (default: about 2^21 samples per pass, a "
                         "divisor of --spp; a different value changes the last bits)")

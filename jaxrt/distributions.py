@@ -25,6 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxrt.vecmath import device_array
+
 
 class Discrete(NamedTuple):
     """A probability mass function over ``n`` items.
@@ -75,7 +77,7 @@ def _is_traced(x) -> bool:
 
 def _float_dtype(x) -> jnp.dtype:
     """The float dtype tables are stored in: the input's if floating, else the default float."""
-    dtype = jnp.asarray(x).dtype
+    dtype = jax.dtypes.canonicalize_dtype(x.dtype if hasattr(x, "dtype") else np.asarray(x).dtype)
     return dtype if jnp.issubdtype(dtype, jnp.floating) else jnp.result_type(float)
 
 
@@ -126,7 +128,7 @@ def discrete_from_weights(w) -> Discrete:
     if w64.ndim != 1:
         raise ValueError(f"weights: expected a 1D array, got shape {w64.shape}")
     _validate(w64, "weights")
-    return Discrete(jnp.asarray(w64 / w64.sum(), dtype), jnp.asarray(_cdf_rows(np, w64), dtype))
+    return Discrete(device_array(w64 / w64.sum(), dtype), device_array(_cdf_rows(np, w64), dtype))
 
 
 #: Up to this many bins, :func:`_find_bin` counts with unrolled compares (no loop, no gather).
@@ -211,8 +213,9 @@ def _pc1d_host(f64: np.ndarray, lo: float, hi: float, dtype) -> PiecewiseConstan
     integral = f64.sum(axis=-1) * (hi - lo) / n
     batch = f64.shape[:-1]
     return PiecewiseConstant1D(
-        jnp.asarray(f64, dtype), jnp.asarray(_cdf_rows(np, f64), dtype),
-        jnp.asarray(integral, dtype), jnp.full(batch, lo, dtype), jnp.full(batch, hi, dtype))
+        device_array(f64, dtype), device_array(_cdf_rows(np, f64), dtype),
+        device_array(integral, dtype), device_array(np.full(batch, lo), dtype),
+        device_array(np.full(batch, hi), dtype))
 
 
 def pc1d_sample(d: PiecewiseConstant1D, u: Array) -> tuple[Array, Array, Array]:
@@ -281,7 +284,7 @@ def pc2d_from_values(f) -> PiecewiseConstant2D:
     _validate(f64, "values")
     cond = _pc1d_host(f64, 0.0, 1.0, dtype)
     marginal = _pc1d_host(f64.mean(axis=1), 0.0, 1.0, dtype)
-    return PiecewiseConstant2D(marginal, cond, jnp.asarray(f64.mean(), dtype))
+    return PiecewiseConstant2D(marginal, cond, device_array(f64.mean(), dtype))
 
 
 def _row(d: PiecewiseConstant2D, j: Array) -> PiecewiseConstant1D:

@@ -61,7 +61,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
-from jaxrt.vecmath import cross, dot
+from jaxrt.vecmath import cross, device_array, dot
 
 
 def gamma(n: int, dtype) -> Array:
@@ -446,7 +446,7 @@ def triangle_set(triangles) -> TriangleSet:
         idx = np.flatnonzero(bad)
         raise ValueError(f"triangle {idx[0]} has a non-finite vertex {tri[idx[0]].tolist()}"
                          f" ({idx.size} bad triangle(s) in all)")
-    vertices = jnp.asarray(tri)
+    vertices = device_array(tri)
     tri64 = tri.astype(np.float64)
     # normal and degeneracy from the stored (rounded) vertices, as the kernel sees them
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
@@ -456,8 +456,8 @@ def triangle_set(triangles) -> TriangleSet:
     ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
     # sorted as stored (float64 input may be stored as float32: two vertices that round to the
     # same float32 must sort alike in every triangle that shares them)
-    return TriangleSet(vertices, jnp.asarray(ng.astype(vertices.dtype)), jnp.asarray(valid),
-                       jnp.asarray(canonical_vertices(np.asarray(vertices))))
+    return TriangleSet(vertices, device_array(ng.astype(vertices.dtype)), device_array(valid),
+                       device_array(canonical_vertices(np.asarray(vertices))))
 
 
 def canonical_vertices(triangles: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 from jax import Array, lax
 
 from jaxrt import warp
-from jaxrt.vecmath import dot, normalize, reflect, to_local, to_world
+from jaxrt.vecmath import device_array, dot, normalize, reflect, to_local, to_world
 
 DIFFUSE, PHONG, CONDUCTOR, MIRROR = 0, 1, 2, 3
 KIND_NAMES = {DIFFUSE: "diffuse", PHONG: "phong", CONDUCTOR: "conductor", MIRROR: "mirror"}
@@ -91,13 +91,13 @@ def _make(kind: int, kd=0.0, ks=0.0, exponent=0.0, alpha=0.0, fresnel_schlick=1.
           masking_separable=0.0) -> Material:
     dt = _float_dtype()
     return Material(
-        kind=jnp.asarray(kind, jnp.int32),
-        kd=jnp.asarray(np.broadcast_to(kd, (3,)), dt),
-        ks=jnp.asarray(np.broadcast_to(ks, (3,)), dt),
-        exponent=jnp.asarray(exponent, dt),
-        alpha=jnp.asarray(alpha, dt),
-        fresnel_schlick=jnp.asarray(fresnel_schlick, dt),
-        masking_separable=jnp.asarray(masking_separable, dt),
+        kind=device_array(kind, jnp.int32),
+        kd=device_array(np.broadcast_to(kd, (3,)), dt),
+        ks=device_array(np.broadcast_to(ks, (3,)), dt),
+        exponent=device_array(exponent, dt),
+        alpha=device_array(alpha, dt),
+        fresnel_schlick=device_array(fresnel_schlick, dt),
+        masking_separable=device_array(masking_separable, dt),
     )
 
 
@@ -162,7 +162,9 @@ def material_table(materials: Sequence[Material]) -> tuple[Material, tuple[int, 
     """
     if len(materials) == 0:
         raise ValueError("material_table needs at least one material")
-    table = jax.tree.map(lambda *xs: jnp.stack(xs), *materials)
+    # stacked on the host: jnp.stack would compile a program per field
+    table = jax.tree.map(lambda *xs: device_array(np.stack([np.asarray(x) for x in xs])),
+                         *materials)
     kinds = tuple(sorted({int(k) for k in np.asarray(table.kind)}))
     unknown = set(kinds) - set(KIND_NAMES)
     if unknown:

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
+from jaxrt import program_cache
 from jaxrt.bvh import BVH
 from jaxrt.estimators import COMPILER_OPTIONS, Estimator, camera_sample
 from jaxrt.scene import Scene
@@ -53,9 +54,10 @@ class Sums(NamedTuple):
 
 
 def zero_sums(shape: tuple, dtype) -> Sums:
-    """The sums before the first sample, for lanes of ``shape``."""
-    zero = jnp.zeros(shape + (3,), dtype)
-    return Sums(zero, zero, zero, zero, jnp.zeros(shape, jnp.int32))
+    """The sums before the first sample, for lanes of ``shape`` (numpy: built on the host,
+    no program compiled)."""
+    zero = np.zeros(shape + (3,), dtype)
+    return Sums(zero, zero, zero, zero, np.zeros(shape, np.int32))
 
 
 def two_sum(hi, lo, x):
@@ -185,8 +187,8 @@ class RenderPass:
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
         # the scene's arrays are copied to every device once, not once per pass
         self.scenes = [jax.device_put(scene, d) for d in devices]
-        self.seeds = [jax.device_put(jnp.uint32(seed), d) for d in devices]
-        self.firsts = [jax.device_put(jnp.int32((rank * len(devices) + k) * self.per_device), d)
+        self.seeds = [jax.device_put(np.uint32(seed), d) for d in devices]
+        self.firsts = [jax.device_put(np.int32((rank * len(devices) + k) * self.per_device), d)
                        for k, d in enumerate(devices)]
         self.compiled: dict[int, list] = {}  # samples per pass -> one executable per device
 
@@ -197,19 +199,24 @@ class RenderPass:
     def compile(self, count: int) -> float:
         """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
         t0 = time.perf_counter()
-        self.compiled[count] = [
-            render_tiles.lower(sc, sd, jax.device_put(jnp.int32(0), d), f, z, count=count,
-                               **self.static).compile(COMPILER_OPTIONS)
-            for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
-                                       self.zeros(), strict=True)]
+        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing)
+        self.compiled[count] = [program_cache.compile_cached(*job) for job in self.jobs(count)]
         return time.perf_counter() - t0
+
+    def jobs(self, count: int) -> list:
+        """``(function, arguments, static arguments, compiler options, device)`` of the
+        program each device runs for ``count`` samples per pixel."""
+        return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f, z),
+                 dict(count=count, **self.static), COMPILER_OPTIONS, d)
+                for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
+                                           self.zeros(), strict=True)]
 
     def __call__(self, sums: list[Sums], start: int, count: int) -> list[Sums]:
         """The carry ``sums`` advanced by samples ``[start, start + count)`` (waits for it)."""
         if count not in self.compiled:
             self.compile(count)
         # dispatch to every device first (asynchronously), then wait for all
-        outs = [exe(sc, sd, jax.device_put(jnp.int32(start), d), f, acc)
+        outs = [exe(sc, sd, jax.device_put(np.int32(start), d), f, acc)
                 for exe, sc, sd, f, d, acc in zip(self.compiled[count], self.scenes, self.seeds,
                                                   self.firsts, self.devices, sums, strict=True)]
         return jax.block_until_ready(outs)

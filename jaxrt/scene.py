@@ -43,7 +43,7 @@ from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
 from jaxrt.intersect import any_hit, closest_hit, gamma
-from jaxrt.vecmath import dot, normalize
+from jaxrt.vecmath import device_array, dot, normalize
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
 
@@ -216,9 +216,9 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     dt = jax.dtypes.canonicalize_dtype(jnp.float64)
     return Scene(
         geometry=geometry,
-        triangles=jnp.asarray(triangles, dt),
-        prim_material=jnp.asarray(prim_material),
-        prim_light=jnp.asarray(prim_light),
+        triangles=device_array(triangles, dt),
+        prim_material=device_array(prim_material),
+        prim_light=device_array(prim_light),
         materials=table,
         lights=light_table,
         camera=camera,

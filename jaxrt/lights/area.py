@@ -31,7 +31,7 @@ from jaxrt.lights.records import (
     safe_div,
     to_device,
 )
-from jaxrt.vecmath import area_to_solid_angle_pdf, dot, length
+from jaxrt.vecmath import area_to_solid_angle_pdf, device_array, dot, length
 from jaxrt.warp import (
     square_to_spherical_triangle,
     square_to_spherical_triangle_pdf,
@@ -103,8 +103,8 @@ def triangle_lights(vertices, radiance, prims, two_sided=False) -> TriangleLight
     two = np.broadcast_to(np.asarray(two_sided, bool), (n,))
     cross64 = np.cross(e1, e2)
     diameter = np.max(np.abs(v[:, :, None, :] - v[:, None, :, :]), axis=(1, 2, 3))
-    return TriangleLights(to_device(v), to_device(rad), jnp.asarray(two),
-                          jnp.asarray(prim, jnp.int32), to_device(cross64 / twice_area[:, None]),
+    return TriangleLights(to_device(v), to_device(rad), device_array(two),
+                          device_array(prim, jnp.int32), to_device(cross64 / twice_area[:, None]),
                           to_device(0.5 * twice_area), to_device(diameter))
 
 

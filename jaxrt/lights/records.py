@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from jaxrt.vecmath import device_array
+
 # Rec. 709 / sRGB luminance weights, used for power-proportional selection.
 LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
@@ -116,4 +118,4 @@ def unit_rows(a: np.ndarray, what: str) -> np.ndarray:
 
 def to_device(a: np.ndarray, dtype=None) -> Array:
     """Host array to a JAX array of the default float dtype (float32, or float64 under x64)."""
-    return jnp.asarray(a, dtype=dtype if dtype is not None else jnp.result_type(float))
+    return device_array(a, dtype=dtype if dtype is not None else jnp.result_type(float))

@@ -30,6 +30,7 @@ from jax import Array
 from jaxrt.distributions import discrete_from_weights, discrete_pmf, discrete_sample
 from jaxrt.lights import area, delta, environment, sphere
 from jaxrt.lights.records import LightSample
+from jaxrt.vecmath import device_array
 
 KINDS = ("point", "spot", "directional", "triangle", "sphere", "environment")
 DELTA_KINDS = ("point", "spot", "directional")
@@ -98,7 +99,9 @@ jax.tree_util.register_dataclass(Lights, data_fields=[*KINDS, "selection"],
 
 def _concat(tables):
     """Concatenate same-kind tables along their leading (light) axis."""
-    return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=0), *tables)
+    # on the host: jnp.concatenate would compile a program per field
+    return jax.tree.map(lambda *xs: device_array(np.concatenate([np.asarray(x) for x in xs])),
+                        *tables)
 
 
 def light_powers(lights: Lights, scene_radius: float = 1.0) -> np.ndarray:

@@ -1,0 +1,232 @@
+"""Start-up of a render: first frame, the second ``jaxrt`` run, compile time per estimator.
+
+    python benchmarks/startup.py                    # all three, ~2 min on the 2-core machine
+    python benchmarks/startup.py --only compile     # per-estimator compile times only
+
+Every figure comes from a fresh interpreter (``subprocess``), as a user meets it:
+
+- **first frame**: ``import jaxrt`` → a 64-spp 256² Cornell box with MIS (``render(...)``),
+  no persistent caches of any kind; also the seconds of compilation inside it;
+- **second run**: ``jaxrt render`` at 16², 16 spp, twice with the same empty cache directory
+  (``XDG_CACHE_HOME``): the second run's wall time from process start to exit, and the
+  compile seconds it prints (the second reads its pass from jaxrt's program cache);
+- **compile per estimator**: trace, lower and XLA compile of the 256² pass (32 spp per pass,
+  as ``render`` picks for 64 spp), each estimator in its own process, wall and CPU seconds;
+  and the same pass read from :mod:`jaxrt.program_cache` by a second process.
+
+The machine is shared: each figure is the median of ``--repeat`` runs, printed with the load
+average (``os.getloadavg``) before and after.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+ESTIMATORS = ("mis", "mis_one_sample", "light_solid_angle", "light_area", "bsdf",
+              "cosine_hemisphere", "uniform_hemisphere")
+
+FIRST_FRAME = """
+import time
+t0 = time.perf_counter()
+from jaxrt import scenes
+from jaxrt.render import render
+r = render(scenes.cornell_box(256, 256), "mis", spp=64, seed=0, progress=False)
+r.image.sum()
+print(time.perf_counter() - t0, r.timings["compile"])
+"""
+
+COMPILE = """
+import sys, time
+import jax, jax.numpy as jnp
+from jaxrt import scenes
+import jaxrt.passes as ps
+from jaxrt.estimators import COMPILER_OPTIONS, make_estimator, prepare_scene
+from jaxrt.render import default_spp_per_pass
+est = make_estimator(sys.argv[1])
+scene = prepare_scene(scenes.cornell_box(256, 256), est)
+run = ps.RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
+                    spp_total=64, batch_size=64)
+args = (run.scenes[0], run.seeds[0], jnp.int32(0), run.firsts[0])
+clock = lambda: (time.perf_counter(), time.process_time())
+t = [clock()]
+traced = ps.render_tiles.trace(*args, count=default_spp_per_pass(256 * 256, 64), **run.static)
+t.append(clock())
+lowered = traced.lower()
+t.append(clock())
+lowered.compile(COMPILER_OPTIONS)
+t.append(clock())
+print(" ".join(f"{b[0] - a[0]:.4f} {b[1] - a[1]:.4f}" for a, b in zip(t, t[1:])))
+"""
+
+
+#: Subprocesses run here, so that ``-c``/``-m`` do not import a ``jaxrt`` from the current
+#: directory instead of :data:`TREE`'s.
+_NEUTRAL = tempfile.gettempdir()
+#: The tree whose ``jaxrt`` package is measured (``--jaxrt``: e.g. an older checkout, to
+#: compare before and after in the same period of machine load).
+TREE = ROOT
+
+
+CACHED = """
+import sys, time
+import jax
+from jaxrt import program_cache, scenes
+from jaxrt.estimators import make_estimator, prepare_scene
+from jaxrt.passes import RenderPass
+from jaxrt.render import default_spp_per_pass
+program_cache.set_directory(sys.argv[2])
+est = make_estimator(sys.argv[1])
+scene = prepare_scene(scenes.cornell_box(256, 256), est)
+run = RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
+                 spp_total=64, batch_size=64)
+c0 = time.process_time()
+wall = run.compile(default_spp_per_pass(256 * 256, 64))
+print(wall, time.process_time() - c0, program_cache.STATS["hits"])
+"""
+
+
+def _env(**extra) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(TREE) + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               **extra)
+    return env
+
+
+def _load() -> str:
+    one, five, fifteen = os.getloadavg()
+    return f"load {one:.2f} {five:.2f} {fifteen:.2f}"
+
+
+def _child_cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def first_frame(repeat: int = 3) -> dict:
+    """Seconds from a fresh interpreter to a 64-spp 256² MIS image, and the compile in it
+    (and the process's CPU seconds)."""
+    runs = []
+    for _ in range(repeat):
+        cpu = _child_cpu()
+        out = subprocess.run([sys.executable, "-c", FIRST_FRAME], capture_output=True,
+                             cwd=_NEUTRAL,
+                             text=True, check=True, timeout=600,
+                             env=_env(JAX_ENABLE_COMPILATION_CACHE="false",
+                                      JAXRT_NO_COMPILE_CACHE="1"))
+        runs.append([float(x) for x in out.stdout.split()[-2:]] + [_child_cpu() - cpu])
+    return {"first_frame_s": statistics.median(r[0] for r in runs),
+            "first_frame_compile_s": statistics.median(r[1] for r in runs),
+            "first_frame_cpu_s": statistics.median(r[2] for r in runs), "runs": runs}
+
+
+def second_run(repeat: int = 3) -> dict:
+    """Wall seconds of a second ``jaxrt render`` (16², 16 spp) and the compile it reports."""
+    import time
+
+    walls, compiles, firsts, cpus = [], [], [], []
+    for _ in range(repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            argv = [sys.executable, "-m", "jaxrt.cli", "render", "--width", "16", "--height",
+                    "16", "--spp", "16", "-q", "-o", os.path.join(tmp, "out.exr")]
+            env = _env(XDG_CACHE_HOME=os.path.join(tmp, "cache"))
+            env.pop("JAXRT_NO_COMPILE_CACHE", None)
+            for k in range(2):
+                t0, cpu = time.perf_counter(), _child_cpu()
+                out = subprocess.run(argv, capture_output=True, cwd=_NEUTRAL, text=True,
+                                     check=True,
+                                     timeout=600, env=env)
+                wall = time.perf_counter() - t0
+                compile_s = float(re.search(r"\+([0-9.]+) s compile", out.stdout).group(1))
+                (firsts if k == 0 else walls).append(wall)
+                if k:
+                    compiles.append(compile_s)
+                    cpus.append(_child_cpu() - cpu)
+    return {"second_run_wall_s": statistics.median(walls),
+            "second_run_compile_s": statistics.median(compiles),
+            "second_run_cpu_s": statistics.median(cpus),
+            "first_run_wall_s": statistics.median(firsts),
+            "walls": walls, "compiles": compiles}
+
+
+def compile_times(repeat: int = 1, estimators=ESTIMATORS) -> dict:
+    """{estimator: (trace, lower, xla) wall and CPU seconds}, medians over ``repeat``."""
+    res = {}
+    for name in estimators:
+        runs = []
+        for _ in range(repeat):
+            out = subprocess.run([sys.executable, "-c", COMPILE, name], capture_output=True,
+                                 cwd=_NEUTRAL,
+                                 text=True, check=True, timeout=600,
+                                 env=_env(JAX_ENABLE_COMPILATION_CACHE="false"))
+            runs.append([float(x) for x in out.stdout.split()[-6:]])
+        med = [statistics.median(r[i] for r in runs) for i in range(6)]
+        res[name] = {"trace": med[0], "lower": med[2], "xla": med[4],
+                     "total": med[0] + med[2] + med[4],
+                     "total_cpu": med[1] + med[3] + med[5]}
+        # a second run: the pass read from the program cache (the first run fills it)
+        hits = []
+        with tempfile.TemporaryDirectory() as tmp:
+            for k in range(1 + repeat):
+                out = subprocess.run([sys.executable, "-c", CACHED, name, tmp],
+                                     capture_output=True, cwd=_NEUTRAL, text=True,
+                                     check=True, timeout=600,
+                                     env=_env(JAX_ENABLE_COMPILATION_CACHE="false"))
+                wall, cpu, hit = out.stdout.split()[-3:]
+                if k:
+                    assert hit == "1", out.stdout
+                    hits.append((float(wall), float(cpu)))
+        res[name]["cached"] = statistics.median(h[0] for h in hits)
+        res[name]["cached_cpu"] = statistics.median(h[1] for h in hits)
+    return res
+
+
+def main(argv=None) -> dict:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--only", choices=("first", "second", "compile"), default=None)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--json", default=None, help="also write the figures here")
+    p.add_argument("--jaxrt", default=None, metavar="DIR",
+                   help="measure the jaxrt package in DIR (default: this checkout)")
+    a = p.parse_args(argv)
+    global TREE
+    TREE = Path(a.jaxrt).resolve() if a.jaxrt else ROOT
+    out = {}
+    if a.only in (None, "first"):
+        print(_load(), flush=True)
+        out["first"] = first_frame(a.repeat)
+        print(f"first frame: {out['first']['first_frame_s']:.2f} s (compile "
+              f"{out['first']['first_frame_compile_s']:.2f} s, CPU "
+              f"{out['first']['first_frame_cpu_s']:.2f} s), runs {out['first']['runs']}; "
+              f"{_load()}", flush=True)
+    if a.only in (None, "second"):
+        out["second"] = second_run(a.repeat)
+        s = out["second"]
+        print(f"second jaxrt run: {s['second_run_wall_s']:.2f} s wall (compile "
+              f"{s['second_run_compile_s']:.2f} s, CPU {s['second_run_cpu_s']:.2f} s; first run "
+              f"{s['first_run_wall_s']:.2f} s), "
+              f"walls {s['walls']}; {_load()}", flush=True)
+    if a.only in (None, "compile"):
+        out["compile"] = compile_times(a.repeat)
+        print("| estimator | trace | lower | XLA | total (wall) | total CPU | "
+              "program cache hit (wall / CPU) |")
+        for name, c in out["compile"].items():
+            print(f"| {name} | {c['trace']:.2f} | {c['lower']:.2f} | {c['xla']:.2f} | "
+                  f"{c['total']:.2f} | {c['total_cpu']:.2f} | {c['cached']:.2f} / "
+                  f"{c['cached_cpu']:.2f} |")
+        print(_load(), flush=True)
+    if a.json:
+        Path(a.json).write_text(json.dumps(out, indent=1))
+    return out
+
+
+if __name__ == "__main__":
+    main()

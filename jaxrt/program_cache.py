@@ -1,0 +1,252 @@
+"""Compiled render passes kept on disk, so that a second ``jaxrt render`` traces nothing.
+
+JAX's persistent compilation cache skips XLA on a second run, but not tracing and lowering
+(1.2–1.5 s of the 256² Cornell box's pass on this 2-core machine): its key is a hash of the
+lowered program, which exists only after both. This cache is keyed instead by everything the
+traced program is a function of, known before tracing:
+
+- jaxrt's own source (every ``.py`` file of the package), the versions of jax, jaxlib and
+  numpy, JAX's tracing configuration (x64, promotion rules, …) and ``XLA_FLAGS``;
+- the compiled function, its static arguments (estimator, sampler, spp, samples per pass,
+  tiles) and the XLA compiler options;
+- the arguments' pytree structure, which carries the scene's static fields (BSDF and light
+  kinds, light counts, sampling modes, accelerator, image size), and every array's shape,
+  dtype and device;
+- the backend (platform and version, device kind and id, process) and the host CPU (model
+  and instruction-set flags: the executable is machine code for this CPU).
+
+A hit deserialises the XLA executable (~0.3 s) and runs it: the same machine code as a fresh
+compile, hence bit-identical images. A file that cannot be read (truncated, corrupt, from
+another jax) is ignored with a warning and replaced. Payloads are checked against a SHA-256
+before they are unpickled, and the unpickler resolves only classes and functions of jax,
+jaxlib, numpy's ``dtype`` and jaxrt (never a module) (the executable format of ``jax.experimental.
+serialize_executable``); like JAX's own cache, the directory must be writable only by you.
+
+The cache is off unless a directory is set: the ``jaxrt`` command sets
+``$XDG_CACHE_HOME/jaxrt/programs`` (else ``~/.cache/jaxrt/programs``) and turns it off with
+the XLA cache (``--no-compile-cache``, ``JAXRT_NO_COMPILE_CACHE=1``); importing the library
+never does. At most :data:`MAX_FILES` programs are kept (least recently used go first).
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import io
+import os
+import pickle
+import platform
+import tempfile
+import threading
+import types
+import warnings
+from pathlib import Path
+
+import jax
+import numpy as np
+
+#: Where compiled programs are kept; None (the default) turns the cache off.
+DIRECTORY: str | None = None
+#: Programs kept at most; the least recently used are deleted beyond this.
+MAX_FILES = 64
+#: What this process did: programs loaded, compiled and stored, files ignored as unreadable.
+STATS = {"hits": 0, "misses": 0, "stores": 0, "unreadable": 0}
+
+_MAGIC = b"jaxrt-program-v1\n"
+_SUFFIX = ".jaxrt-program"
+
+
+def set_directory(path: str | os.PathLike | None) -> None:
+    """Keep compiled programs in ``path`` (created on first store); None turns the cache off."""
+    global DIRECTORY
+    DIRECTORY = None if path is None else os.fspath(path)
+
+
+@functools.cache
+def source_digest(root: str | None = None) -> str:
+    """SHA-256 of jaxrt's source: every ``.py`` file under the package, path and contents."""
+    base = Path(root) if root is not None else Path(__file__).resolve().parent
+    h = hashlib.sha256()
+    for p in sorted(base.rglob("*.py")):
+        h.update(p.relative_to(base).as_posix().encode() + b"\0")
+        h.update(p.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+@functools.cache
+def _host_cpu() -> str:
+    """The CPU model and its instruction-set flags (machine code is compiled for them)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            lines = f.read().split("\n\n")[0].splitlines()
+        keep = ("vendor_id", "model name", "flags", "cpu family", "model")
+        return "\n".join(ln for ln in lines if ln.split(":")[0].strip() in keep)
+    except OSError:
+        return f"{platform.machine()} {platform.processor()}"
+
+
+def _trace_config() -> str:
+    """JAX's configuration that affects tracing (what ``jax.jit`` keys its own cache on)."""
+    try:
+        from jax._src import config
+
+        ctx = config.trace_context()
+    except Exception:  # pragma: no cover - other jax versions
+        ctx = (jax.config.jax_enable_x64, jax.config.jax_numpy_dtype_promotion)
+    # drop members without a stable text form (objects printed with their address)
+    return repr(tuple(x for x in ctx if " at 0x" not in repr(x)))
+
+
+def program_key(fn, args: tuple, static: dict, options: dict, device) -> str:
+    """The cache key of ``fn`` compiled for ``args`` (arrays), ``static`` and ``options``."""
+    import jaxlib
+
+    leaves, treedef = jax.tree.flatten(args)
+    parts = [
+        _MAGIC.decode(), source_digest(), f"jax {jax.__version__} jaxlib {jaxlib.__version__} "
+        f"numpy {np.__version__}", _trace_config(), os.environ.get("XLA_FLAGS", ""),
+        f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}",
+        repr(sorted(static.items())), repr(sorted(options.items())), str(treedef),
+        *(f"{jax.typeof(x)} {getattr(x, 'sharding', None)}" for x in leaves),
+        f"{device.platform} {device.client.platform_version} {device.device_kind} "
+        f"{device.id} {jax.process_index()}/{jax.process_count()}", _host_cpu()]
+    return hashlib.sha256("\n".join(parts).encode()).hexdigest()
+
+
+def compile_cached(fn, args: tuple, static: dict, options: dict, device):
+    """``fn.lower(*args, **static).compile(options)``, read from the cache when it holds it.
+
+    ``fn`` is a ``jax.jit`` function with ``static`` as its static arguments; ``args`` are
+    committed to ``device``. Returns a ``jax.stages.Compiled``.
+    """
+    if DIRECTORY is None:
+        return fn.lower(*args, **static).compile(options)
+    key = program_key(fn, args, static, options, device)
+    path = Path(DIRECTORY) / (key + _SUFFIX)
+    in_tree = jax.tree.structure((args, {}))
+    if path.exists():
+        compiled = _load(path, key, in_tree, device)
+        if compiled is not None:
+            STATS["hits"] += 1
+            return compiled
+    STATS["misses"] += 1
+    _watch_xla_cache()
+    before = getattr(_XLA_CACHE_HITS, "n", 0)
+    compiled = fn.lower(*args, **static).compile(options)
+    # an executable read from JAX's persistent cache is not kept: XLA:CPU (jaxlib 0.10.2)
+    # serialises a deserialised executable without some of its kernels, and running it
+    # fails ("Function ... not found"); only freshly compiled programs are stored
+    if getattr(_XLA_CACHE_HITS, "n", 0) == before:
+        _store(path, key, compiled)
+    return compiled
+
+
+#: JAX persistent-cache hits in this thread (see :func:`compile_cached`).
+_XLA_CACHE_HITS = threading.local()
+_WATCHING: list = []
+
+
+def _count_xla_cache_hit(event: str, **kwargs) -> None:
+    if event == "/jax/compilation_cache/cache_hits":
+        _XLA_CACHE_HITS.n = getattr(_XLA_CACHE_HITS, "n", 0) + 1
+
+
+def _watch_xla_cache() -> None:
+    if not _WATCHING:
+        _WATCHING.append(True)
+        jax.monitoring.register_event_listener(_count_xla_cache_hit)
+
+
+class _Unpickler(pickle.Unpickler):
+    """``serialize_executable``'s unpickler, resolving only jax/jaxlib/jaxrt names."""
+
+    def __init__(self, file, backend, devices):
+        super().__init__(file)
+        self.backend, self.devices = backend, devices
+
+    def find_class(self, module, name):
+        top = module.split(".")[0]
+        if "." in name or not (top in ("jax", "jaxlib", "jaxrt")
+                               or (module, name) == ("numpy", "dtype")):
+            raise pickle.UnpicklingError(f"{module}.{name} is not allowed in a program file")
+        obj = super().find_class(module, name)
+        if isinstance(obj, types.ModuleType):  # e.g. jax._src.x.os: never a way out
+            raise pickle.UnpicklingError(f"{module}.{name} is a module")
+        return obj
+
+    def persistent_load(self, pid):
+        from jax._src.lib import xla_client as xc
+
+        if pid[0] == "exec":
+            return self.backend.deserialize_executable(
+                pid[1], executable_devices=xc.DeviceList(tuple(self.devices)))
+        if pid[0] == "device":
+            return {d.id: d for d in self.devices}[pid[1]]
+        if pid[0] == "client":
+            return self.backend
+        raise pickle.UnpicklingError(f"unknown persistent id {pid[0]!r}")
+
+
+def _load(path: Path, key: str, in_tree, device):
+    """The compiled program in ``path``, or None (with a warning) if it cannot be used."""
+    try:
+        data = path.read_bytes()
+        header, _, payload = data.partition(b"\n\n")
+        magic, file_key, digest = header.split(b"\n")
+        if magic + b"\n" != _MAGIC or file_key.decode() != key:
+            raise ValueError("not a program of this key")
+        if hashlib.sha256(payload).hexdigest() != digest.decode():
+            raise ValueError("checksum mismatch (truncated or corrupt)")
+        unloaded, args_flat, no_kwargs, file_in_tree, out_tree = _Unpickler(
+            io.BytesIO(payload), device.client, [device]).load()
+        if file_in_tree != in_tree:
+            raise ValueError("argument structure differs")
+        compiled = jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_flat),
+                                       out_tree, no_kwargs=no_kwargs)
+        os.utime(path)  # recently used
+        return compiled
+    except Exception as e:  # any failure is a miss: never a crash, never a wrong program
+        STATS["unreadable"] += 1
+        warnings.warn(f"ignoring unreadable compiled-program cache file {path} ({e}); "
+                      "compiling instead", stacklevel=3)
+        return None
+
+
+def _store(path: Path, key: str, compiled) -> None:
+    """Write ``compiled`` to ``path`` atomically; failures only warn (the render goes on)."""
+    try:
+        from jax.experimental.serialize_executable import _JaxPjrtPickler
+
+        unloaded = getattr(compiled._executable, "_unloaded_executable", None)
+        if unloaded is None or compiled._params.const_args:
+            return  # not serialisable (JAX says so); nothing to keep
+        args_flat, in_tree = jax.tree.flatten(compiled.args_info)
+        buf = io.BytesIO()
+        _JaxPjrtPickler(buf).dump((unloaded, args_flat, compiled._no_kwargs, in_tree,
+                                   compiled.out_tree))
+        payload = buf.getvalue()
+        header = _MAGIC + key.encode() + b"\n" + hashlib.sha256(payload).hexdigest().encode()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=_SUFFIX)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(header + b"\n\n" + payload)
+            os.replace(tmp, path)
+        except BaseException:
+            os.unlink(tmp)
+            raise
+        STATS["stores"] += 1
+        _evict(path.parent)
+    except Exception as e:
+        warnings.warn(f"could not keep the compiled program in {path.parent} ({e})",
+                      stacklevel=3)
+
+
+def _evict(directory: Path) -> None:
+    """Delete the least recently used programs beyond :data:`MAX_FILES`."""
+    files = sorted(directory.glob("*" + _SUFFIX), key=lambda p: p.stat().st_mtime)
+    for p in files[:max(0, len(files) - MAX_FILES)]:
+        try:
+            p.unlink()
+        except OSError:
+            pass

@@ -1,0 +1,150 @@
+"""jaxrt.program_cache: compiled render passes on disk (what a second ``jaxrt render`` reads).
+
+A hit must render the image of a fresh compile bit for bit; any change to what the traced
+program depends on must miss; a damaged or hostile file must be ignored with a warning."""
+
+import pickle
+import shutil
+
+import jax
+import numpy as np
+import pytest
+
+from jaxrt import program_cache, scenes
+from jaxrt.estimators import make_estimator, prepare_scene
+from jaxrt.passes import RenderPass
+from jaxrt.render import render
+from jaxrt.scene import with_triangle_sampling
+
+SIZE = 8
+
+
+@pytest.fixture
+def cache_dir(tmp_path, monkeypatch):
+    """The program cache in a fresh directory, its counters at zero; off again afterwards."""
+    monkeypatch.setattr(program_cache, "DIRECTORY", str(tmp_path / "programs"))
+    monkeypatch.setattr(program_cache, "STATS", dict.fromkeys(program_cache.STATS, 0))
+    return tmp_path / "programs"
+
+
+def _key(scene, estimator="mis", count=2, spp=2):
+    est = make_estimator(estimator)
+    run = RenderPass(prepare_scene(scene, est), 0, jax.local_devices()[:1], 256, est=est,
+                     sampler="independent", spp_total=spp, batch_size=64)
+    (job,) = run.jobs(count)
+    return program_cache.program_key(*job)
+
+
+def _files(directory):
+    return sorted(directory.glob("*.jaxrt-program"))
+
+
+def test_off_by_default():
+    assert program_cache.DIRECTORY is None
+
+
+def test_hit_renders_the_fresh_compile_bit_for_bit(cache_dir, monkeypatch):
+    box = scenes.cornell_box(SIZE, SIZE)
+    first = render(box, "mis", spp=2, seed=5, progress=False)
+    assert program_cache.STATS == {"hits": 0, "misses": 1, "stores": 1, "unreadable": 0}
+    assert len(_files(cache_dir)) == 1
+    # the second render reads the program: no trace, lower or compile (only misses do those)
+    hit = render(box, "mis", spp=2, seed=5, progress=False)
+    assert program_cache.STATS == {"hits": 1, "misses": 1, "stores": 1, "unreadable": 0}
+    # and the image equals a fresh compile's with the cache off
+    monkeypatch.setattr(program_cache, "DIRECTORY", None)
+    fresh = render(box, "mis", spp=2, seed=5, progress=False)
+    assert np.array_equal(hit.image, fresh.image) and np.array_equal(hit.stderr, fresh.stderr)
+    assert np.array_equal(first.image, fresh.image)
+    assert _files(cache_dir)[0].name.startswith(_key(box))
+
+
+def test_every_static_change_misses(monkeypatch):
+    box = scenes.cornell_box(SIZE, SIZE)
+    base = _key(box)
+    assert _key(box) == base  # deterministic
+    variants = {
+        "estimator": _key(box, "light_area"),
+        "spp per pass": _key(box, count=1),
+        "spp (strata)": _key(box, spp=4),
+        "image size": _key(scenes.cornell_box(SIZE, 2 * SIZE)),
+        "static scene field": _key(box.replace(
+            lights=with_triangle_sampling(box.lights, "solid_angle"))),
+        "accelerator": _key(scenes.cornell_box(SIZE, SIZE, accel="bvh")),
+        "light selection": _key(scenes.cornell_box(SIZE, SIZE, light_selection="uniform")),
+    }
+    with jax.enable_x64(True):
+        variants["x64"] = _key(scenes.cornell_box(SIZE, SIZE))
+    monkeypatch.setattr(program_cache, "source_digest", lambda root=None: "edited")
+    variants["jaxrt source"] = _key(box)
+    monkeypatch.undo()
+    monkeypatch.setenv("XLA_FLAGS", "--xla_cpu_enable_fast_math=true")
+    variants["XLA_FLAGS"] = _key(box)
+    keys = variants
+    for what, key in keys.items():
+        assert key != base, f"changing the {what} does not change the key"
+    assert len(set(keys.values())) == len(keys)
+
+
+def test_source_digest_follows_every_file(tmp_path):
+    import jaxrt
+
+    src = tmp_path / "jaxrt"
+    shutil.copytree(jaxrt.__path__[0], src, ignore=shutil.ignore_patterns("__pycache__"))
+    before = program_cache.source_digest.__wrapped__(str(src))
+    target = src / "lights" / "area.py"
+    target.write_text(target.read_text() + "\n# a comment\n")
+    assert program_cache.source_digest.__wrapped__(str(src)) != before
+
+
+def _damage(path, how):
+    data = path.read_bytes()
+    header, _, payload = data.partition(b"\n\n")
+    if how == "truncated":
+        path.write_bytes(data[: len(data) // 2])
+    elif how == "bit flip":
+        i = len(header) + 2 + len(payload) // 2
+        path.write_bytes(data[:i] + bytes([data[i] ^ 0x10]) + data[i + 1:])
+    elif how == "garbage":
+        path.write_bytes(b"not a program at all")
+    elif how == "hostile pickle":  # a valid checksum over a pickle that would run a command
+        import hashlib
+
+        class Evil:
+            def __reduce__(self):
+                import os
+
+                return (os.system, ("echo pwned > /dev/null",))
+
+        payload = pickle.dumps(Evil())
+        magic, key, _ = header.split(b"\n")
+        path.write_bytes(magic + b"\n" + key + b"\n"
+                         + hashlib.sha256(payload).hexdigest().encode() + b"\n\n" + payload)
+
+
+@pytest.mark.parametrize("how", ["truncated", "bit flip", "garbage", "hostile pickle"])
+def test_unreadable_file_is_ignored_with_a_warning(cache_dir, how, monkeypatch):
+    box = scenes.cornell_box(SIZE, SIZE)
+    good = render(box, "mis", spp=2, seed=1, progress=False)
+    (path,) = _files(cache_dir)
+    _damage(path, how)
+    if how == "hostile pickle":
+        import os
+
+        monkeypatch.setattr(os, "system", lambda *a: pytest.fail("unpickled os.system"))
+    with pytest.warns(UserWarning, match="ignoring unreadable compiled-program cache file"):
+        again = render(box, "mis", spp=2, seed=1, progress=False)
+    assert np.array_equal(good.image, again.image)
+    assert program_cache.STATS["unreadable"] == 1 and program_cache.STATS["hits"] == 0
+    # the damaged file was replaced by a good one: the next render hits
+    render(box, "mis", spp=2, seed=1, progress=False)
+    assert program_cache.STATS["hits"] == 1
+
+
+def test_least_recently_used_programs_are_evicted(cache_dir, monkeypatch):
+    monkeypatch.setattr(program_cache, "MAX_FILES", 1)
+    box = scenes.cornell_box(SIZE, SIZE)
+    render(box, "mis", spp=2, progress=False)
+    render(box, "mis", spp=1, progress=False)
+    files = _files(cache_dir)
+    assert len(files) == 1 and files[0].name.startswith(_key(box, count=1, spp=1))
