@@ -20,6 +20,11 @@ _LAZY = {
     "RenderInterrupted": ("jaxrt.render", "RenderInterrupted"),
     "load_scene": ("jaxrt.scene_file", "load_scene"),
     "chi2_test": ("jaxrt.testing", "chi2_test"),
+    "estimate_image": ("jaxrt.differentiable", "estimate_image"),
+    "image_vjp": ("jaxrt.differentiable", "image_vjp"),
+    "gradient": ("jaxrt.differentiable", "gradient"),
+    "scene_params": ("jaxrt.differentiable", "scene_params"),
+    "with_params": ("jaxrt.differentiable", "with_params"),
 }
 
 

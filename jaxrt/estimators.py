@@ -35,6 +35,18 @@ the cone they subtend; environments the map's own distribution).
 
 Emitters seen directly by the camera contribute their radiance ``L_e`` to the pixel.
 
+Derivatives (``jax.jvp`` / ``jax.vjp`` / ``jax.grad`` w.r.t. material and emission
+parameters θ) are those of each estimator with its *sampling detached*: every sampled
+direction and point, every pdf (light-selection pmf included) and every MIS weight is under
+``lax.stop_gradient``, so only the integrand ``f(θ) · L_e(θ)`` carries a derivative. With the
+sample held fixed, ``E_{X~p}[∂_θ f(X; θ) / p(X)] = ∂_θ ∫ f`` for any density p that covers
+f's support, and the MIS weights sum to one at every X whatever θ, so each derivative is an
+unbiased estimate of the derivative of the expected image — also where the sampler itself
+depends on θ (Phong lobe choice and exponent, GGX α): differentiating *through* the sampled
+direction instead would miss the boundary terms where the emitter seen along it changes.
+``stop_gradient`` is the identity in the primal: the render program is unchanged. Geometry is
+not covered (:func:`jaxrt.scene.guard_geometry`).
+
 Random dimensions: (0, 1) pixel jitter; light sample k uses the pair (2 + 4k, 3 + 4k) for the
 point on the light and dimension 4 + 4k to choose the light; BSDF sample k the pair
 (2 + 4·n_light + 2k, …). One-sample MIS uses 2 for the choice, 4–6 light, 8–9 BSDF.
@@ -48,18 +60,20 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
+from jax import Array, lax
 
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt import sampler as smp
 from jaxrt import warp
 from jaxrt.camera import generate_ray
+from jaxrt.derivatives import nondifferentiable
 from jaxrt.scene import (
     TRIANGLE,
     Scene,
     SurfaceHit,
     emitted,
+    guard_geometry,
     intersect,
     light_normal,
     light_point_error,
@@ -184,14 +198,16 @@ def mis_weight(heuristic: str, n_f: Array, pdf_f: Array, n_g: Array, pdf_g: Arra
     balance: ``n_f p_f / (n_f p_f + n_g p_g)``; power (β = 2):
     ``(n_f p_f)² / ((n_f p_f)² + (n_g p_g)²)``. ``n_f``, ``n_g`` are the sample counts; the
     weights of the two techniques sum to one wherever either pdf is positive; 0 where both
-    vanish.
+    vanish. No derivative flows through a weight (``stop_gradient``): it sums to one with
+    its partner at every sample whatever the parameters.
     """
     a = n_f * pdf_f
     b = n_g * pdf_g
     if heuristic == "power":
         a, b = a * a, b * b
     s = a + b
-    return jnp.where(s > 0, a / jnp.where(s > 0, s, 1), 0)
+    # weights of detached pdfs carry no derivative (module notes): say so where they are made
+    return lax.stop_gradient(jnp.where(s > 0, a / jnp.where(s > 0, s, 1), 0))
 
 
 def _div(num: Array, den: Array) -> Array:
@@ -229,12 +245,15 @@ def _light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) 
     """Sample a light, test visibility, and form the light-sampling estimate and both pdfs."""
     u = jnp.concatenate([u_select[None], u_point])
     ls = lt.sample_li(scene.lights, x.hit.p, x.n, u)
-    wi_local = to_local(ls.wi, x.n)
+    # sampling detached: only f and li carry derivatives (module notes)
+    wi, pdf_light = lax.stop_gradient(ls.wi), lax.stop_gradient(ls.pdf)
+    wi_local = to_local(wi, x.n)
     f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
     visible = _visible(scene, x, ls)
-    value = jnp.where(visible, _div(f * ls.li * jnp.abs(wi_local[2]), ls.pdf), 0)
-    pdf_bsdf = mt.bsdf_pdf(x.material, x.wo_local, wi_local, scene.material_kinds)
-    return _LightTerm(value, ls.pdf, pdf_bsdf, ls.is_delta)
+    value = jnp.where(visible, _div(f * ls.li * jnp.abs(wi_local[2]), pdf_light), 0)
+    pdf_bsdf = lax.stop_gradient(mt.bsdf_pdf(x.material, x.wo_local, wi_local,
+                                             scene.material_kinds))
+    return _LightTerm(value, pdf_light, pdf_bsdf, ls.is_delta)
 
 
 def _visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
@@ -266,10 +285,12 @@ class _BSDFTerm(NamedTuple):
 def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
     """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
     s = mt.bsdf_sample(x.material, x.wo_local, u, scene.material_kinds)
-    wi = to_world(s.wi, x.n)
+    # sampling detached: the weight's derivative is that of f cos / p at a fixed wi
+    weight = mt.detached_weight(x.material, x.wo_local, s, scene.material_kinds)
+    wi = to_world(lax.stop_gradient(s.wi), x.n)
     le, h = _trace_emission(scene, x, wi)
-    pdf_light = lt.pdf_li(scene.lights, x.hit.p, wi, h.light, h.p)
-    return _BSDFTerm(s.weight * le, s.pdf, pdf_light, s.is_delta)
+    pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, x.hit.p, wi, h.light, h.p))
+    return _BSDFTerm(weight * le, lax.stop_gradient(s.pdf), pdf_light, s.is_delta)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -415,29 +436,48 @@ def estimate_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: in
     The point ``p`` (3,) with unit normal ``n`` is shaded with material row ``material`` of the
     scene, seen along ``wo`` (unit, towards the viewer); the scene supplies lights and
     occluders (:func:`jaxrt.scene.shading_scene` builds one from a material and lights alone).
-    Returns the Monte Carlo mean of ``num_samples`` independent estimates and its standard
-    error ``σ/√N``. Useful to test an estimator against :mod:`jaxrt.analytic`.
+    Returns the Monte Carlo mean of ``num_samples`` independent estimates
+    (:func:`samples_at`) and its standard error ``σ/√N``. Useful to test an estimator against
+    :mod:`jaxrt.analytic`.
+
+    Differentiable w.r.t. the scene's material and emission arrays (derivatives with the
+    sampling detached, see the module notes); derivatives w.r.t. ``p``, ``n``, ``wo`` or the
+    scene's geometry raise (:func:`jaxrt.scene.guard_geometry`).
 
     Raises ValueError when ``wo`` is not above the surface (``n · wo ≤ 0``): BSDFs are
     one-sided about ``n``, and the renderer would shade the other side (flip ``n`` yourself
     to mean that).
     """
+    values = samples_at(scene, estimator, p, n, wo, material, num_samples=num_samples,
+                        seed=seed, sampler=sampler, **params)
+    mean = jnp.mean(values, axis=0)
+    var = jnp.var(values, axis=0, ddof=1)
+    return PointEstimate(mean, jnp.sqrt(var / num_samples), int(num_samples))
+
+
+def samples_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: int = 0, *,
+               num_samples: int = 1 << 14, seed: int = 0, sampler: str = "independent",
+               **params) -> Array:
+    """The ``num_samples`` independent one-sample estimates (N, 3) that :func:`estimate_at`
+    averages: sample ``k`` uses the stream (seed, pixel 0, index k). Same arguments, errors
+    and derivatives as :func:`estimate_at`; per-sample values give derivative estimators
+    their own standard error (``jax.jvp`` of this, see
+    :func:`jaxrt.differentiable.derivative_at`)."""
     est = make_estimator(estimator, **params)
     if not isinstance(wo, jax.core.Tracer) and not isinstance(n, jax.core.Tracer):
         cos_o = float(np.dot(np.asarray(n, np.float64), np.asarray(wo, np.float64)))
         if not cos_o > 0:
             raise ValueError(f"wo is not above the surface: n · wo = {cos_o:.3g} ≤ 0 (flip n to "
                              "shade the other side)")
-    scene = prepare_scene(scene, est)
+    scene = guard_geometry(prepare_scene(scene, est))
     dtype = scene.triangles.dtype
-    p, n, wo = (jnp.asarray(a, dtype) for a in (p, n, wo))
+    # the shading point is geometry too: its derivatives are refused like the scene's
+    p, n, wo = (nondifferentiable(jnp.asarray(a, dtype), f"the shading point's {name}")
+                for a, name in ((p, "p"), (n, "n"), (wo, "wo")))
     hit = SurfaceHit(t=jnp.asarray(1, dtype), p=p, p_error=default_point_error(p), ng=n,
                      kind=jnp.int32(TRIANGLE), prim=jnp.int32(-1),
                      material=jnp.int32(material), light=jnp.int32(-1))
-    values = _estimate_at(scene, est, hit, wo, jnp.uint32(seed), sampler, int(num_samples))
-    mean = jnp.mean(values, axis=0)
-    var = jnp.var(values, axis=0, ddof=1)
-    return PointEstimate(mean, jnp.sqrt(var / num_samples), int(num_samples))
+    return _estimate_at(scene, est, hit, wo, jnp.uint32(seed), sampler, int(num_samples))
 
 
 @jax.jit(static_argnames=("est", "sampler", "num_samples"), compiler_options=COMPILER_OPTIONS)

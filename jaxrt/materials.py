@@ -35,6 +35,7 @@ import numpy as np
 from jax import Array, lax
 
 from jaxrt import warp
+from jaxrt.derivatives import with_tangent_of
 from jaxrt.vecmath import device_array, dot, normalize, reflect, to_local, to_world
 
 DIFFUSE, PHONG, CONDUCTOR, MIRROR = 0, 1, 2, 3
@@ -442,6 +443,24 @@ def bsdf_pdf(m: Material, wo: Array, wi: Array, kinds: tuple[int, ...]) -> Array
 def bsdf_sample(m: Material, wo: Array, u: Array, kinds: tuple[int, ...]) -> BSDFSample:
     """Draw ``wi`` from ``u ∈ [0,1)^2``; see :class:`BSDFSample` for the weight convention."""
     return _dispatch("sample", kinds, m, wo, u)
+
+
+def detached_weight(m: Material, wo: Array, s: BSDFSample, kinds: tuple[int, ...]) -> Array:
+    """``s.weight`` as a number; as a derivative, that of ``f(wo, wi; θ) |cos θi| / p(wi)``
+    with the sampled ``wi`` and its density ``p`` held fixed (sampling detached).
+
+    For ``wi ~ p_θ``, ``E[∂_θ f(wi; θ) |cos θi| / p_θ(wi)] = ∂_θ ∫ f |cos θi| dwi``: the
+    derivative of the BSDF sampling estimator is unbiased whatever the sampler does with θ
+    (the Phong lobe choice moves with kd, ks; the lobe with the exponent; the visible normal
+    with α). The weight's own autodiff derivative is not that: it differentiates through the
+    sampled direction (missing the boundary terms where the emitter seen along ``wi``
+    changes) and, for GGX, through the closed form ``F G / G1`` of ``f cos / p``. Delta lobes
+    (mirror) keep the weight's own derivative (their ``wi`` does not depend on θ). An
+    identity in the primal (:func:`jaxrt.derivatives.with_tangent_of`). Shape (3,).
+    """
+    wi, pdf = lax.stop_gradient(s.wi), lax.stop_gradient(s.pdf)
+    f_cos_over_p = _safe_div(bsdf_eval(m, wo, wi, kinds) * jnp.abs(wi[2]), pdf)
+    return with_tangent_of(s.weight, jnp.where(s.is_delta, s.weight, f_cos_over_p))
 
 
 def bsdf_albedo(m: Material, wo: Array, u: Array,

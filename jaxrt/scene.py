@@ -42,6 +42,7 @@ from jax import Array
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
+from jaxrt.derivatives import nondifferentiable
 from jaxrt.intersect import any_hit, closest_hit, gamma
 from jaxrt.vecmath import device_array, dot, normalize
 
@@ -427,3 +428,44 @@ def material_at(scene: Scene, hit: SurfaceHit) -> mt.Material:
 def shading_normal(ng: Array, wo: Array) -> Array:
     """The geometric normal flipped to the viewer's side (two-sided reflection)."""
     return jnp.where(dot(ng, wo) < 0, -ng, ng)
+
+
+#: Fields of each light table that are geometry: :func:`guard_geometry` refuses their derivatives.
+LIGHT_GEOMETRY_FIELDS = {
+    "point": ("position",), "spot": ("position", "axis"), "directional": ("direction",),
+    "triangle": ("vertices", "normal", "area", "diameter"), "sphere": ("center", "radius"),
+    "environment": ("rotation",),
+}
+
+
+def guard_geometry(scene: Scene) -> Scene:
+    """The same scene whose geometric arrays refuse derivatives (:func:`nondifferentiable`).
+
+    Geometry: the triangles and the acceleration structure, the camera (pose, field of view,
+    aspect), light positions, axes, directions, triangle-light vertices (and their derived
+    normal, area, diameter), sphere centres and radii, and the environment map's rotation.
+    Visibility makes the image discontinuous in all of them, so plain autodiff would miss the
+    boundary terms; differentiating through the guarded scene w.r.t. any of them raises a
+    ``ValueError`` naming the array. An identity in the primal (the compiled program is
+    unchanged); used by :func:`jaxrt.differentiable.estimate_image` and
+    :func:`jaxrt.estimators.estimate_at`.
+    """
+    def guard(a, what):
+        a = jnp.asarray(a)
+        return nondifferentiable(a, what) if jnp.issubdtype(a.dtype, jnp.floating) else a
+
+    lights = scene.lights
+    tables = {}
+    for kind, fields in LIGHT_GEOMETRY_FIELDS.items():
+        t = lights.table(kind)
+        if t is not None:
+            tables[kind] = t._replace(**{f: guard(getattr(t, f), f"{kind} light {f}")
+                                         for f in fields if f in t._fields})
+    cam = scene.camera
+    camera = dataclasses.replace(cam, **{f: guard(getattr(cam, f), f"the camera's {f}")
+                                         for f in ("eye", "frame", "tan_half_fov", "aspect")})
+    return scene.replace(
+        geometry=jax.tree.map(lambda a: guard(a, "the scene geometry (acceleration structure)"),
+                              scene.geometry),
+        triangles=guard(scene.triangles, "the scene's triangle vertices"),
+        lights=dataclasses.replace(lights, **tables), camera=camera)

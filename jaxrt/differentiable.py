@@ -1,0 +1,297 @@
+"""Differentiable and batched images: ``estimate_image`` under ``jit``, ``grad`` and ``vmap``.
+
+:func:`estimate_image` is the per-pixel Monte Carlo mean that :func:`jaxrt.render` computes,
+
+    I_p(θ) = 1/N Σ_{k<N} L(θ; seed, p, k),
+
+as a pure function of the scene's arrays: the same per-sample program
+(:func:`jaxrt.estimators.camera_sample`), laid out and summed by the same compiled pass
+(:func:`jaxrt.passes.render_tiles`), so the same seed and sampler give the same image as
+``render`` up to the order of float32 sums. It works under ``jax.jit``, ``jax.grad`` /
+``jax.vjp`` / ``jax.jvp`` and ``jax.vmap``; the scene's static structure (kinds, counts,
+image size) stays static.
+
+Which to use: ``render`` for images (passes, progress, time budget, error target, devices,
+processes, files, a float64 sum over passes); ``estimate_image`` inside a JAX program
+(losses, optimisers, batches of parameter sets); :func:`image_vjp` / :func:`gradient` for
+derivatives at many samples per pixel, whose memory does not grow with spp.
+
+What is differentiable (:func:`scene_params` names it): material parameters (``kd``, ``ks``,
+Phong ``exponent``, GGX ``alpha``), emitted radiance of triangle and sphere lights, point and
+spot intensities, directional irradiance, constant-environment radiance and environment-map
+texels. The derivative of each estimator is taken with its *sampling detached*
+(``lax.stop_gradient`` on every sampled direction and point, every pdf and light-selection
+pmf, every MIS weight; see :mod:`jaxrt.estimators`): for ``X ~ p_θ``,
+
+    E[∂_θ f(X; θ) / p_θ(X)] = ∫ ∂_θ f(x; θ) dx = ∂_θ ∫ f(x; θ) dx,
+
+so every derivative is an unbiased estimate of the derivative of the expected image, also
+where the sampler depends on θ (BSDF sampling on the Phong exponent and GGX α). We chose
+this over differentiating the sample (reparameterisation) because a sampled direction that
+moves with θ crosses the edges of emitters and occluders, and autodiff misses those boundary
+terms (a biased derivative; ``tests/test_differentiable.py`` shows it).
+
+What is not: geometry (vertices, camera, light positions and shapes, environment rotation).
+Visibility makes the image discontinuous in it, so derivatives w.r.t. it raise a
+``ValueError`` (:func:`jaxrt.scene.guard_geometry`); never silently wrong or zero.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from jaxrt.estimators import (
+    COMPILER_OPTIONS,
+    Estimator,
+    PointEstimate,
+    make_estimator,
+    prepare_scene,
+    samples_at,
+)
+from jaxrt.passes import LANES, render_tiles, step_layout, zero_sums
+from jaxrt.sampler import SAMPLER_KINDS
+from jaxrt.scene import Scene, guard_geometry
+
+#: Differentiable arrays by name: (table path, field). Materials rows are (M, ·); lights (L, ·).
+PARAMS = {
+    "materials.kd": ("materials", "kd"),
+    "materials.ks": ("materials", "ks"),
+    "materials.exponent": ("materials", "exponent"),
+    "materials.alpha": ("materials", "alpha"),
+    "point.intensity": ("point", "intensity"),
+    "spot.intensity": ("spot", "intensity"),
+    "directional.irradiance": ("directional", "irradiance"),
+    "triangle.radiance": ("triangle", "radiance"),
+    "sphere.radiance": ("sphere", "radiance"),
+    "environment.radiance": ("environment", "radiance"),
+    "environment.image": ("environment", "image"),
+}
+
+#: Samples (pixels × spp) per derivative pass of :func:`image_vjp` by default.
+VJP_SAMPLES_PER_PASS = 2**15
+
+#: :func:`gradient`'s derivative passes use the seed XOR this (decorrelated from the image).
+DERIVATIVE_SEED_XOR = 0x9E3779B9
+
+
+def _table(scene: Scene, where: str):
+    return scene.materials if where == "materials" else scene.lights.table(where)
+
+
+def scene_params(scene: Scene) -> dict[str, Array]:
+    """The scene's differentiable arrays, by name (only those the scene has).
+
+    ``materials.kd`` / ``materials.ks`` (M, 3), ``materials.exponent`` / ``materials.alpha``
+    (M,) — one row per material (per mesh, in :func:`jaxrt.scene.build_scene` order);
+    ``triangle.radiance`` (L, 3) one row per emissive triangle; ``point.intensity``,
+    ``spot.intensity`` (L, 3) in W/sr; ``directional.irradiance`` (L, 3); ``sphere.radiance``
+    (L, 3); ``environment.radiance`` (3,) or ``environment.image`` (H, W, 3).
+    """
+    out = {}
+    for name, (where, field) in PARAMS.items():
+        t = _table(scene, where)
+        if t is not None and field in t._fields:
+            out[name] = getattr(t, field)
+    return out
+
+
+def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
+    """``scene`` with some of its :func:`scene_params` replaced (any subset, same shapes).
+
+    Nothing is validated against the physical ranges (a traced value cannot be): an
+    optimiser should keep albedos in [0, 1] and radiances ≥ 0 itself. Raises KeyError for a
+    name the scene does not have.
+    """
+    have = scene_params(scene)
+    unknown = set(params) - set(have)
+    if unknown:
+        raise KeyError(f"not differentiable parameters of this scene: {sorted(unknown)}; it has "
+                       f"{sorted(have)}")
+    by_table: dict[str, dict] = {}
+    for name, value in params.items():
+        where, field = PARAMS[name]
+        by_table.setdefault(where, {})[field] = value
+    lights = scene.lights
+    light_tables = {}
+    for where, fields in by_table.items():
+        if where != "materials":
+            light_tables[where] = lights.table(where)._replace(**fields)
+    materials = scene.materials._replace(**by_table.get("materials", {}))
+    return scene.replace(materials=materials, lights=dataclasses.replace(lights, **light_tables))
+
+
+def _check(spp, sampler: str, name: str = "spp") -> int:
+    if not isinstance(spp, int | np.integer) or isinstance(spp, bool) or spp <= 0:
+        raise ValueError(f"{name} must be a positive integer, got {spp!r}")
+    if sampler not in SAMPLER_KINDS:
+        raise ValueError(f"unknown sampler {sampler!r}; choose one of {SAMPLER_KINDS}")
+    return int(spp)
+
+
+def _image_sums(scene: Scene, seed, start, *, est: Estimator, sampler: str, spp_total: int,
+                count: int, tile_size: int, batch_size: int) -> Array:
+    """Σ L over samples ``[start, start + count)`` of every pixel, (H, W, 3): one render pass.
+
+    ``scene`` must already be prepared for ``est``; its geometry is guarded here.
+    """
+    h, w = scene.height, scene.width
+    tile_size = LANES * math.ceil(int(tile_size) / LANES)
+    num_tiles = math.ceil(h * w / tile_size)
+    per_step, steps = step_layout(num_tiles, int(batch_size))
+    # the pass advances a carry of running sums (render threads it through its passes)
+    zero = zero_sums((steps * per_step * tile_size,), scene.triangles.dtype)
+    sums = render_tiles(guard_geometry(scene), jnp.asarray(seed, jnp.uint32),
+                        jnp.asarray(start, jnp.int32), jnp.int32(0), zero, est=est,
+                        sampler=sampler, spp_total=spp_total, count=count,
+                        tile_size=tile_size, batch_size=int(batch_size), num_tiles=num_tiles)
+    # Σ L is the pair hi + lo (TwoSum): lo carries hi's rounding errors and no derivative
+    return (sums.s1 + sums.s1_lo)[: h * w].reshape(h, w, 3)
+
+
+def estimate_image(scene: Scene, estimator: str | Estimator = "mis", spp: int = 16, seed=0,
+                   sampler: str = "independent", *, tile_size: int = 256, batch_size: int = 64,
+                   **estimator_params) -> Array:
+    """The per-pixel Monte Carlo mean ``I_p = 1/N Σ_{k<N} L(seed, p, k)``, (H, W, 3), pure.
+
+    Args:
+        scene: a :class:`jaxrt.Scene`; its arrays may be traced (``jit``, ``vmap``, ``grad``
+            w.r.t. :func:`scene_params`; derivatives w.r.t. geometry raise).
+        estimator, estimator_params: as :func:`jaxrt.render` (static).
+        spp: samples per pixel N (static). seed: int or traced uint32 (vmap over seeds works).
+        sampler: "independent" | "stratified" | "sobol" (static).
+        tile_size, batch_size: the lane layout of :func:`jaxrt.render` (static; they change
+            nothing but memory and speed).
+
+    Returns radiance in the measure of the image (mean over the pixel's box filter), float32
+    (float64 under x64). Samples that are not finite count as 0, as in ``render``. Under
+    reverse mode the whole sample loop is taped: memory ∝ pixels × spp; for many samples
+    use :func:`image_vjp`, whose memory does not grow with spp.
+    """
+    est = make_estimator(estimator, **estimator_params)
+    spp = _check(spp, sampler)
+    scene = prepare_scene(scene, est)
+    s1 = _image_sums(scene, seed, 0, est=est, sampler=sampler, spp_total=spp, count=spp,
+                     tile_size=tile_size, batch_size=batch_size)
+    return s1 / jnp.asarray(spp, s1.dtype)
+
+
+@jax.jit(static_argnames=("est", "sampler", "spp_total", "count", "tile_size", "batch_size"),
+         compiler_options=COMPILER_OPTIONS)
+def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total, count,
+              tile_size, batch_size):
+    """⟨cotangent, ∂(Σ_{pass} L / N)/∂params⟩ for one pass: its own tape, freed after."""
+    def image_part(p):
+        return _image_sums(with_params(scene, p), seed, start, est=est, sampler=sampler,
+                           spp_total=spp_total, count=count, tile_size=tile_size,
+                           batch_size=batch_size) / spp_total
+
+    _, vjp = jax.vjp(image_part, params)
+    return vjp(cotangent.astype(scene.triangles.dtype))[0]
+
+
+def default_vjp_spp_per_pass(num_pixels: int, spp: int) -> int:
+    """The largest divisor of ``spp`` not above ``VJP_SAMPLES_PER_PASS / num_pixels`` (≥ 1)."""
+    target = max(1, VJP_SAMPLES_PER_PASS // max(1, num_pixels))
+    return max(d for d in range(1, min(spp, target) + 1) if spp % d == 0)
+
+
+def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, spp: int,
+              spp_per_pass: int | None = None, seed=0, sampler: str = "independent",
+              params: tuple[str, ...] | None = None, tile_size: int = 256,
+              batch_size: int = 64, **estimator_params) -> dict[str, Array]:
+    """``Σ_p ⟨c_p, ∂I_p/∂θ⟩`` for the image of :func:`estimate_image` (same seed, same samples),
+    accumulated pass by pass: memory independent of ``spp``.
+
+    ``cotangent`` c: (H, W, 3), fixed (e.g. ``∂loss/∂I`` at an image of *other* samples:
+    :func:`gradient`). Pass ``i`` takes samples ``[i·k, (i+1)·k)`` of every pixel
+    (``k = spp_per_pass``, default :func:`default_vjp_spp_per_pass`), runs its own
+    ``jax.vjp`` (one compiled program, reused by every pass) and its result is added in
+    float64 on the host; only one pass's tape is alive at a time, so peak memory grows with
+    pixels × k, not with spp. The sum equals ``jax.vjp`` of ``estimate_image`` up to float
+    rounding. ``params``: names from :func:`scene_params` to differentiate (default all).
+
+    Returns a dict name → gradient, each of its parameter's shape and dtype.
+    """
+    est = make_estimator(estimator, **estimator_params)
+    spp = _check(spp, sampler)
+    k = (default_vjp_spp_per_pass(scene.width * scene.height, spp) if spp_per_pass is None
+         else min(_check(spp_per_pass, sampler, "spp_per_pass"), spp))
+    scene = prepare_scene(scene, est)
+    every = scene_params(scene)
+    names = tuple(every) if params is None else tuple(params)
+    theta = {n: every[n] for n in names}
+    c = jnp.asarray(cotangent)
+    if c.shape != (scene.height, scene.width, 3):
+        raise ValueError(f"cotangent must have shape {(scene.height, scene.width, 3)}, "
+                         f"got {c.shape}")
+    total = None
+    for start in range(0, spp, k):
+        count = min(k, spp - start)
+        g = _vjp_pass(scene, theta, c, jnp.asarray(seed, jnp.uint32), jnp.int32(start), est=est,
+                      sampler=sampler, spp_total=spp, count=count, tile_size=tile_size,
+                      batch_size=batch_size)
+        g = {n: np.asarray(v, np.float64) for n, v in g.items()}
+        total = g if total is None else {n: total[n] + g[n] for n in g}
+    return {n: jnp.asarray(total[n], theta[n].dtype) for n in names}
+
+
+class Gradient(NamedTuple):
+    """What :func:`gradient` returns: the loss at the image, its gradient, the image."""
+
+    loss: Array  # () loss(image)
+    grads: dict  # name -> ∂loss/∂θ (image_vjp with decorrelated samples)
+    image: Array  # (H, W, 3) the primal image (seed ``seed``)
+
+
+def gradient(loss: Callable[[Array], Array], scene: Scene, estimator: str | Estimator = "mis",
+             *, spp: int, primal_spp: int | None = None, spp_per_pass: int | None = None,
+             seed: int = 0, sampler: str = "independent", params: tuple[str, ...] | None = None,
+             **estimator_params) -> Gradient:
+    """``∂ loss(I)/∂θ`` by the chain rule with *decorrelated* samples, memory independent of spp.
+
+    The image ``I`` is :func:`estimate_image` at ``seed`` (``primal_spp`` samples, default
+    ``spp``); the cotangent ``c = ∂loss/∂I`` at it; the derivative ``⟨c, ∂I'/∂θ⟩`` is
+    :func:`image_vjp` at seed ``seed ^ DERIVATIVE_SEED_XOR`` (``spp`` samples). The two
+    estimates are independent, so ``E[grad] = E[c] · ∂E[I]/∂θ``: unbiased whenever ``c`` is
+    affine in the image (an L2 loss); reusing the image's samples for ``∂I/∂θ`` would
+    correlate them and bias the product even then.
+    """
+    est = make_estimator(estimator, **estimator_params)
+    image = estimate_image(scene, est, spp=primal_spp or spp, seed=seed, sampler=sampler)
+    value, c = jax.value_and_grad(loss)(image)
+    grads = image_vjp(scene, c, est, spp=spp, spp_per_pass=spp_per_pass,
+                      seed=(int(seed) ^ DERIVATIVE_SEED_XOR) & 0xFFFFFFFF, sampler=sampler,
+                      params=params)
+    return Gradient(value, grads, image)
+
+
+def derivative_at(scene: Scene, tangents: dict[str, Array], estimator: str | Estimator, p, n,
+                  wo, material: int = 0, *, num_samples: int = 1 << 14, seed: int = 0,
+                  sampler: str = "independent", **estimator_params) -> PointEstimate:
+    """Directional derivative of :func:`jaxrt.estimators.estimate_at` along ``tangents``, ± error.
+
+    ``tangents``: name → array of :func:`scene_params` (a subset). The derivative
+    ``d/dt E[L(θ + t v)]`` at ``t = 0`` is estimated by the mean of the ``num_samples``
+    one-sample derivative estimates (``jax.jvp`` of :func:`jaxrt.estimators.samples_at`,
+    forward mode: sampling detached, see the module notes), with their standard error
+    ``σ/√N`` — the derivative estimator's own error, for tests against closed forms.
+    """
+    theta = {k: scene_params(scene)[k] for k in tangents}
+
+    def values(t):
+        return samples_at(with_params(scene, t), estimator, p, n, wo, material,
+                          num_samples=num_samples, seed=seed, sampler=sampler,
+                          **estimator_params)
+
+    tan = {k: jnp.asarray(v, theta[k].dtype) for k, v in tangents.items()}
+    _, d = jax.jvp(values, (theta,), (tan,))
+    return PointEstimate(jnp.mean(d, axis=0), jnp.std(d, axis=0, ddof=1) / math.sqrt(num_samples),
+                         int(num_samples))
