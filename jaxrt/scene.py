@@ -351,18 +351,11 @@ def light_normal(scene: Scene, light: Array, q: Array) -> Array:
         j, mine = _local_index(s, "triangle", light)
         # one gather per component from the (3, L) table: under vmap each is a contiguous
         # vector, where gathering (3,) rows cost a (…, 3) kernel of its own
-        table = lights.triangle.normal.T.astype(q.dtype)
-        n = jnp.where(mine, jnp.stack([table[k][j] for k in range(3)]), n)
+        n = jnp.where(mine, lights.triangle.normal[j].astype(q.dtype), n)
     if s.count("sphere"):
         j, mine = _local_index(s, "sphere", light)
         n = jnp.where(mine, normalize(q - lights.sphere.center[j]), n)
     return n
-
-
-def _max_abs(v: Array) -> Array:
-    """``‖v‖_∞`` of a 3-vector by two maxima (a reduction over a minor axis of 3 is a kernel of
-    its own under vmap)."""
-    return jnp.maximum(jnp.maximum(jnp.abs(v[0]), jnp.abs(v[1])), jnp.abs(v[2]))
 
 
 def light_point_error(scene: Scene, light: Array, p: Array, q: Array) -> Array:
@@ -385,12 +378,12 @@ def light_point_error(scene: Scene, light: Array, p: Array, q: Array) -> Array:
     if s.count("triangle"):
         j, mine = _local_index(s, "triangle", light)
         # max_i ‖v_i − p‖_∞ ≤ ‖q − p‖_∞ + diameter (q lies on the triangle): no vertex gather
-        extent = _max_abs(q - p) + lights.triangle.diameter[j].astype(q.dtype)
+        extent = jnp.max(jnp.abs(q - p)) + lights.triangle.diameter[j].astype(q.dtype)
         err = jnp.where(mine, err + g * extent, err)
     if s.count("sphere"):
         j, mine = _local_index(s, "sphere", light)
         c = lights.sphere.center[j].astype(q.dtype)
-        extent = _max_abs(c - p) + lights.sphere.radius[j].astype(q.dtype)
+        extent = jnp.max(jnp.abs(c - p)) + lights.sphere.radius[j].astype(q.dtype)
         err = jnp.where(mine, err + g * extent, err)
     return err
 

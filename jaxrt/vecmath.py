@@ -41,12 +41,10 @@ def device_array(x, dtype=None) -> Array:
 def dot(a: Array, b: Array) -> Array:
     """Inner product of two vectors along the last axis: ``Σ a_k b_k``.
 
-    3-vectors are summed per component, ``(a₀b₀ + a₁b₁) + a₂b₂``: under ``vmap`` a sum over a
-    minor axis of 3 is a reduction kernel of its own (one per dot product in a sample), while
-    the components fuse into the kernels around them.
+    A reduction, not ``a₀b₀ + a₁b₁ + a₂b₂``: under ``vmap`` the per-component form slices the
+    minor axis of (N, 3) arrays, and the 256² MIS render ran 0.72× as fast (2.44 vs 1.76
+    Msamples per CPU-second, quiet machine, 2026-12-02; 0.4× in an earlier session).
     """
-    if a.shape[-1:] == (3,) and b.shape[-1:] == (3,):
-        return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
     return jnp.sum(a * b, axis=-1)
 
 
