@@ -57,6 +57,7 @@ from jaxrt.estimators import (
     samples_at,
 )
 from jaxrt.passes import LANES, render_tiles, step_layout, zero_sums
+from jaxrt.render import default_spp_per_pass
 from jaxrt.sampler import SAMPLER_KINDS
 from jaxrt.scene import Scene, guard_geometry
 
@@ -146,8 +147,11 @@ def _image_sums(scene: Scene, seed, start, *, est: Estimator, sampler: str, spp_
     tile_size = LANES * math.ceil(int(tile_size) / LANES)
     num_tiles = math.ceil(h * w / tile_size)
     per_step, steps = step_layout(num_tiles, int(batch_size))
-    # the pass advances a carry of running sums (render threads it through its passes)
-    zero = zero_sums((steps * per_step * tile_size,), scene.triangles.dtype)
+    # the pass advances a carry of running sums (render threads it through its passes);
+    # zeros made here, not numpy's: under jit (vjp passes) a numpy carry would be a constant
+    # of the program (MBs at 256²), jnp.zeros is a broadcast
+    zero = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype),
+                        zero_sums((steps * per_step * tile_size,), scene.triangles.dtype))
     sums = render_tiles(guard_geometry(scene), jnp.asarray(seed, jnp.uint32),
                         jnp.asarray(start, jnp.int32), jnp.int32(0), zero, est=est,
                         sampler=sampler, spp_total=spp_total, count=count,
@@ -198,9 +202,9 @@ def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total,
 
 
 def default_vjp_spp_per_pass(num_pixels: int, spp: int) -> int:
-    """The largest divisor of ``spp`` not above ``VJP_SAMPLES_PER_PASS / num_pixels`` (≥ 1)."""
-    target = max(1, VJP_SAMPLES_PER_PASS // max(1, num_pixels))
-    return max(d for d in range(1, min(spp, target) + 1) if spp % d == 0)
+    """The largest divisor of ``spp`` not above ``VJP_SAMPLES_PER_PASS / num_pixels`` (≥ 1):
+    :func:`jaxrt.render.default_spp_per_pass`'s rule with a smaller pass (a pass's tape)."""
+    return default_spp_per_pass(num_pixels, spp, VJP_SAMPLES_PER_PASS)
 
 
 def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, spp: int,

@@ -112,11 +112,12 @@ class RenderInterrupted(KeyboardInterrupt):
 SAMPLES_PER_PASS = 2**21
 
 
-def default_spp_per_pass(num_pixels: int, spp: int | None) -> int:
+def default_spp_per_pass(num_pixels: int, spp: int | None,
+                         samples_per_pass: int = SAMPLES_PER_PASS) -> int:
     """Samples per pixel per pass: the largest divisor of ``spp`` (any power of two when spp
-    is unbounded) not above ``SAMPLES_PER_PASS / num_pixels`` (at least 1). A function of the
+    is unbounded) not above ``samples_per_pass / num_pixels`` (at least 1). A function of the
     image size and spp only, so the image never depends on the machine's speed."""
-    target = max(1, SAMPLES_PER_PASS // max(1, num_pixels))
+    target = max(1, samples_per_pass // max(1, num_pixels))
     if spp is None:
         return 1 << (target.bit_length() - 1)
     return max(d for d in range(1, min(spp, target) + 1) if spp % d == 0)
