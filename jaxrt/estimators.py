@@ -93,7 +93,7 @@ from jaxrt.vecmath import to_local, to_world
 COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
 ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
-              "light_solid_angle", "mis", "mis_one_sample")
+              "light_solid_angle", "mis", "mis_one_sample", "path")
 HEURISTICS = ("balance", "power")
 
 
@@ -101,8 +101,10 @@ class Estimator(NamedTuple):
     """Static configuration of an estimator (hashable: it selects the compiled program).
 
     name: one of :data:`ESTIMATORS`; light_samples, bsdf_samples: sample counts of the
-    multi-sample MIS estimator; heuristic: "balance" | "power"; light_prob: probability of
-    choosing light sampling in one-sample MIS.
+    multi-sample MIS estimator; heuristic: "balance" | "power" (MIS and the path tracer);
+    light_prob: probability of choosing light sampling in one-sample MIS; max_depth,
+    rr_depth: the path tracer's longest path in segments (−1: unbounded) and the depth from
+    which Russian roulette ends paths (:mod:`jaxrt.path`, Mitsuba 3's convention).
     """
 
     name: str = "mis"
@@ -110,6 +112,8 @@ class Estimator(NamedTuple):
     bsdf_samples: int = 1
     heuristic: str = "power"
     light_prob: float = 0.5
+    max_depth: int = -1
+    rr_depth: int = 5
 
     @property
     def triangle_sampling(self) -> str | None:
@@ -123,11 +127,15 @@ class Estimator(NamedTuple):
 
     @property
     def num_dims(self) -> int:
-        """How many random dimensions one camera sample uses."""
+        """How many random dimensions one camera sample uses (None: unbounded)."""
         if self.name == "mis":
             return 2 + 4 * self.light_samples + 2 * self.bsdf_samples
         if self.name == "mis_one_sample":
             return 10
+        if self.name == "path":
+            from jaxrt.path import path_dims  # the path tracer builds on this module
+
+            return path_dims(self.max_depth)
         return 2 + 4
 
 
@@ -143,7 +151,9 @@ def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:
     """Validate and build an :class:`Estimator` from a name and parameters.
 
     Raises ValueError for unknown names or heuristics, negative sample counts, MIS without
-    any sample, or ``light_prob`` outside (0, 1).
+    any sample, ``light_prob`` outside (0, 1), a path depth that is neither −1 nor ≥ 1, an
+    ``rr_depth`` < 1, path-tracer options given to a direct estimator, or sample counts
+    other than 1 given to the path tracer (one light and one BSDF sample per vertex).
     """
     est = estimator if isinstance(estimator, Estimator) else Estimator(name=estimator)
     est = est._replace(**params)
@@ -159,6 +169,21 @@ def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:
         raise ValueError("MIS needs at least one light or BSDF sample")
     if not 0.0 < est.light_prob < 1.0:
         raise ValueError(f"light_prob must lie strictly between 0 and 1, got {est.light_prob}")
+    for field, v in (("max_depth", est.max_depth), ("rr_depth", est.rr_depth)):
+        if not isinstance(v, int | np.integer) or isinstance(v, bool):
+            raise ValueError(f"{field} must be an integer, got {v!r}")
+    if est.name == "path":
+        if not (est.max_depth == -1 or est.max_depth >= 1):
+            raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {est.max_depth}")
+        if est.rr_depth < 1:
+            raise ValueError(f"rr_depth must be >= 1, got {est.rr_depth}")
+        if (est.light_samples, est.bsdf_samples) != (1, 1):
+            raise ValueError("the path tracer takes one light and one BSDF sample per vertex; "
+                             "light_samples and bsdf_samples apply to 'mis' only")
+        return est._replace(max_depth=int(est.max_depth), rr_depth=int(est.rr_depth))
+    for field in ("max_depth", "rr_depth"):
+        if field in params and params[field] != Estimator._field_defaults[field]:
+            raise ValueError(f"{field} applies to estimator='path' only, not {est.name!r}")
     return est
 
 
@@ -280,6 +305,10 @@ class _BSDFTerm(NamedTuple):
     pdf_bsdf: Array
     pdf_light: Array
     is_delta: Array
+    weight: Array  # (3,) f · |cos θi| / p_bsdf (the path tracer's throughput factor)
+    le: Array  # (3,) L_e found along wi
+    wi: Array  # (3,) world direction sampled
+    hit: SurfaceHit  # what the ray along wi hit (where a path continues)
 
 
 def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
@@ -290,7 +319,8 @@ def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
     wi = to_world(lax.stop_gradient(s.wi), x.n)
     le, h = _trace_emission(scene, x, wi)
     pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, x.hit.p, wi, h.light, h.p))
-    return _BSDFTerm(weight * le, lax.stop_gradient(s.pdf), pdf_light, s.is_delta)
+    return _BSDFTerm(weight * le, lax.stop_gradient(s.pdf), pdf_light, s.is_delta, weight, le,
+                     wi, h)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -398,11 +428,23 @@ _TECHNIQUES: dict[str, Callable] = {
 
 
 def shade(scene: Scene, est: Estimator, hit: SurfaceHit, wo: Array, s: Stream) -> Array:
-    """Direct illumination reflected at ``hit`` towards ``wo`` (0 off triangle surfaces)."""
-    n = shading_normal(hit.ng, wo)
-    x = ShadingPoint(hit, n, to_local(wo, n), material_at(scene, hit))
-    value = _TECHNIQUES[est.name](scene, est, x, s)
+    """Radiance reflected at ``hit`` towards ``wo`` (0 off triangle surfaces): direct
+    illumination, or for ``path`` all the light of paths up to ``max_depth`` segments."""
+    x = shading_point(scene, hit, wo)
+    if est.name == "path":
+        from jaxrt.path import path  # the path tracer builds on this module's terms
+
+        value = path(scene, est, x, s)
+    else:
+        value = _TECHNIQUES[est.name](scene, est, x, s)
     return jnp.where(hit.kind == TRIANGLE, value, 0)
+
+
+def shading_point(scene: Scene, hit: SurfaceHit, wo: Array) -> ShadingPoint:
+    """The hit made ready for shading: normal flipped towards ``wo``, ``wo`` in its frame,
+    its material row."""
+    n = shading_normal(hit.ng, wo)
+    return ShadingPoint(hit, n, to_local(wo, n), material_at(scene, hit))
 
 
 def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed: Array,
