@@ -22,7 +22,7 @@ from pathlib import Path
 #: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
 #: argument checks need no JAX (tests/test_cli_ux.py checks they equal the library's).
 ESTIMATOR_NAMES = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
-                   "light_solid_angle", "mis", "mis_one_sample")
+                   "light_solid_angle", "mis", "mis_one_sample", "path")
 SAMPLER_NAMES = ("independent", "stratified", "sobol")
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
 DEFAULT_SPP = 64
@@ -71,6 +71,17 @@ def _positive(kind):
 
     parse.__name__ = f"positive {kind.__name__}"
     return parse
+
+
+def _depth(text: str) -> int:
+    """``--max-depth``: an integer ≥ 1, or −1 for unbounded paths."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v == -1 or v >= 1:
+        return v
+    raise argparse.ArgumentTypeError(f"must be -1 (unbounded) or >= 1, got {v}")
 
 
 def _check_output(path: str, suffix: str, option: str, force: bool) -> Path:
@@ -171,6 +182,10 @@ def _write(args, result, interrupted: bool = False) -> None:
     attributes = {"spp": int(result.spp), "jaxrt.stopped_by": result.stopped_by,
                   "jaxrt.estimator": args.estimator, "jaxrt.sampler": args.sampler,
                   "jaxrt.seed": int(args.seed)}
+    for name in ("light_samples", "bsdf_samples", "heuristic", "max_depth", "rr_depth"):
+        if getattr(args, name) is not None:  # what the user chose (defaults: the README's)
+            value = getattr(args, name)
+            attributes[f"jaxrt.{name}"] = value if isinstance(value, str) else int(value)
     io.write_exr(args.output, result.image, extra_channels={"stderr": result.stderr},
                  attributes=attributes)
     if args.png:
@@ -194,7 +209,8 @@ def _render(args) -> int:
     scene = _load(args)
     if args.process_id == 0:
         print(scene.summary(), flush=True)
-    params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic")
+    params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic",
+                                            "max_depth", "rr_depth")
               if getattr(args, k) is not None}
     return _render_interruptibly(args, scene, spp, params)
 
@@ -433,7 +449,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a scene file (.json) or a built-in scene name (see 'jaxrt scenes'); "
                         "default: cornell_box")
     r.add_argument("--estimator", default="mis", choices=ESTIMATOR_NAMES,
-                   help="direct-illumination estimator (README.md, \"Estimators\")")
+                   help="direct-illumination estimator, or 'path' for global illumination "
+                        "(README.md, \"Estimators\" and \"Global illumination\")")
     r.add_argument("--spp", type=_positive(int), default=None,
                    help=f"samples per pixel (default: {DEFAULT_SPP}; no limit with "
                         "--time-budget or --target-error, where it is a maximum)")
@@ -446,6 +463,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="MIS BSDF samples (default: the estimator's, 1)")
     r.add_argument("--heuristic", choices=("balance", "power"), default=None,
                    help="MIS heuristic (default: the estimator's, power)")
+    r.add_argument("--max-depth", type=_depth, default=None,
+                   help="path: longest path in segments, camera ray included (2 = direct "
+                        "light, as Mitsuba 3 counts; default: -1, unbounded)")
+    r.add_argument("--rr-depth", type=_positive(int), default=None,
+                   help="path: Russian roulette from this many bounces on (default: 5)")
     r.add_argument("--time-budget", type=_positive(float), default=None, metavar="SECONDS",
                    help="stop after this many seconds of rendering (compilation excluded)")
     r.add_argument("--target-error", type=_positive(float), default=None, metavar="E",

@@ -207,6 +207,16 @@ def default_vjp_spp_per_pass(num_pixels: int, spp: int) -> int:
     return default_spp_per_pass(num_pixels, spp, VJP_SAMPLES_PER_PASS)
 
 
+def _reverse_mode(est: Estimator) -> Estimator:
+    """``est`` if reverse mode can run through it; the path tracer's vertex loop is a
+    ``lax.while_loop``, which JAX does not reverse-differentiate: refused before any work."""
+    if est.name == "path":
+        raise ValueError("reverse-mode derivatives (gradient, image_vjp, jax.grad) do not go "
+                         "through the path tracer's vertex loop (a lax.while_loop); use "
+                         "forward mode (jax.jvp, derivative_at) or a direct estimator")
+    return est
+
+
 def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, spp: int,
               spp_per_pass: int | None = None, seed=0, sampler: str = "independent",
               params: tuple[str, ...] | None = None, tile_size: int = 256,
@@ -224,7 +234,7 @@ def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, sp
 
     Returns a dict name → gradient, each of its parameter's shape and dtype.
     """
-    est = make_estimator(estimator, **estimator_params)
+    est = _reverse_mode(make_estimator(estimator, **estimator_params))
     spp = _check(spp, sampler)
     k = (default_vjp_spp_per_pass(scene.width * scene.height, spp) if spp_per_pass is None
          else min(_check(spp_per_pass, sampler, "spp_per_pass"), spp))
@@ -268,7 +278,7 @@ def gradient(loss: Callable[[Array], Array], scene: Scene, estimator: str | Esti
     affine in the image (an L2 loss); reusing the image's samples for ``∂I/∂θ`` would
     correlate them and bias the product even then.
     """
-    est = make_estimator(estimator, **estimator_params)
+    est = _reverse_mode(make_estimator(estimator, **estimator_params))
     image = estimate_image(scene, est, spp=primal_spp or spp, seed=seed, sampler=sampler)
     value, c = jax.value_and_grad(loss)(image)
     grads = image_vjp(scene, c, est, spp=spp, spp_per_pass=spp_per_pass,
