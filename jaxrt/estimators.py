@@ -244,11 +244,26 @@ def _div(num: Array, den: Array) -> Array:
 # ---------------------------------------------------------------------------------------------
 
 
+class Arrival(NamedTuple):
+    """What a ray from a shading point finds: the emission along it, the hit, and the
+    density with which light sampling at the origin would have chosen its direction."""
+
+    le: Array  # (3,) L_e(r(o, d), −d) (environment on a miss)
+    hit: SurfaceHit
+    pdf_light: Array  # () solid-angle pdf of d under light sampling at p (detached)
+
+
+def trace_from(scene: Scene, p: Array, o: Array, d: Array) -> Arrival:
+    """Trace ``o + t d`` (``o``: ``p`` offset off its surface, ``d`` unit) to its emitter."""
+    h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
+    pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, p, d, h.light, h.p))
+    return Arrival(emitted(scene, h, -d), h, pdf_light)
+
+
 def _trace_emission(scene: Scene, x: ShadingPoint, wi: Array) -> tuple[Array, SurfaceHit]:
     """``L_e(r(x, wi), −wi)``: the emitted radiance found along wi (environment on a miss)."""
-    o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
-    h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
-    return emitted(scene, h, -wi), h
+    a = trace_from(scene, x.hit.p, *spawn_ray(x.hit.p, x.n, wi, x.hit.p_error))
+    return a.le, a.hit
 
 
 def _direction_sample(scene: Scene, x: ShadingPoint, wi_local: Array, pdf: Array) -> Array:
@@ -305,22 +320,33 @@ class _BSDFTerm(NamedTuple):
     pdf_bsdf: Array
     pdf_light: Array
     is_delta: Array
-    weight: Array  # (3,) f · |cos θi| / p_bsdf (the path tracer's throughput factor)
-    le: Array  # (3,) L_e found along wi
-    wi: Array  # (3,) world direction sampled
-    hit: SurfaceHit  # what the ray along wi hit (where a path continues)
 
 
-def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
-    """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
+class BSDFDirection(NamedTuple):
+    """A BSDF sample at a shading point, in world space, with its sampling detached."""
+
+    weight: Array  # (3,) f |cos θi| / p (derivative at the fixed wi: materials.detached_weight)
+    pdf: Array  # () solid-angle density (detached)
+    is_delta: Array  # () bool
+    o: Array  # (3,) the ray's origin, offset off the surface
+    wi: Array  # (3,) unit world direction
+
+
+def bsdf_direction(scene: Scene, x: ShadingPoint, u: Array) -> BSDFDirection:
+    """Sample the BSDF at ``x`` from ``u`` (2,) and spawn the ray that leaves along it."""
     s = mt.bsdf_sample(x.material, x.wo_local, u, scene.material_kinds)
     # sampling detached: the weight's derivative is that of f cos / p at a fixed wi
     weight = mt.detached_weight(x.material, x.wo_local, s, scene.material_kinds)
     wi = to_world(lax.stop_gradient(s.wi), x.n)
-    le, h = _trace_emission(scene, x, wi)
-    pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, x.hit.p, wi, h.light, h.p))
-    return _BSDFTerm(weight * le, lax.stop_gradient(s.pdf), pdf_light, s.is_delta, weight, le,
-                     wi, h)
+    o, _ = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
+    return BSDFDirection(weight, lax.stop_gradient(s.pdf), s.is_delta, o, wi)
+
+
+def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
+    """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
+    b = bsdf_direction(scene, x, u)
+    a = trace_from(scene, x.hit.p, b.o, b.wi)
+    return _BSDFTerm(b.weight * a.le, b.pdf, a.pdf_light, b.is_delta)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -455,11 +481,16 @@ def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed
     their own radiance; surfaces add the estimator's direct illumination.
     """
     s = Stream(sampler, seed, pixel, index, spp)
-    xy = jnp.stack([pixel % scene.width, pixel // scene.width]).astype(jnp.int32)
-    o, d = generate_ray(scene.camera, xy, s.u2(0))
+    o, d = camera_ray(scene, pixel, s)
     hit = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
     wo = -d
     return emitted(scene, hit, wo) + shade(scene, est, hit, wo, s)
+
+
+def camera_ray(scene: Scene, pixel: Array, s: Stream) -> tuple[Array, Array]:
+    """The camera ray ``(o, d)`` (d unit) through flat pixel ``pixel``, jittered by dims 0–1."""
+    xy = jnp.stack([pixel % scene.width, pixel // scene.width]).astype(jnp.int32)
+    return generate_ray(scene.camera, xy, s.u2(0))
 
 
 class PointEstimate(NamedTuple):

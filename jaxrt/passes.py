@@ -21,11 +21,12 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
+from jax import Array, lax
 
 from jaxrt import program_cache
 from jaxrt.bvh import BVH
-from jaxrt.estimators import COMPILER_OPTIONS, Estimator, camera_sample
+from jaxrt.estimators import COMPILER_OPTIONS, Estimator, Stream, camera_sample
+from jaxrt.path import pass_sums
 from jaxrt.scene import Scene
 
 #: Tiles are rounded up to a multiple of this many pixels (the widest CPU vector of float32).
@@ -92,25 +93,21 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     materialises it once; folded directly, its last stage (the MIS combination) was fused
     into each of the Σx, Σx² and non-finite kernels and computed three times.
     """
+    if est.name == "path":
+        # paths of unequal length: each lane runs its pixel's samples one after the other
+        def lane(pixel, acc):
+            stream = lambda k: Stream(sampler, seed, pixel, start + k, spp_total)
+            return pass_sums(scene, est, stream, count, acc, lambda a, v: _fold(a, _squared(v)))
+
+        for _ in range(pixels.ndim):
+            lane = jax.vmap(lane)
+        return lane(pixels, sums)
+
     sample = lambda pixel, index: camera_sample(scene, est, pixel, index, seed, sampler,
                                                 spp_total)
     for _ in range(pixels.ndim):
         sample = jax.vmap(sample, (0, None))
-
-    def squared(value):
-        # L² is formed with the sample, not in the fold: there LLVM could contract it into
-        # the TwoSum's adds (fma), differently in and after the loop
-        return value, value * value
-
-    def fold(acc: Sums, previous) -> Sums:
-        value, square = previous
-        # per component, not jnp.all over the channel axis: that is a reduction over a minor
-        # axis of 3, a kernel of its own in every sample step
-        ok = (jnp.isfinite(value[..., 0]) & jnp.isfinite(value[..., 1])
-              & jnp.isfinite(value[..., 2]))
-        s1, s1_lo = two_sum(acc.s1, acc.s1_lo, jnp.where(ok[..., None], value, 0))
-        s2, s2_lo = two_sum(acc.s2, acc.s2_lo, jnp.where(ok[..., None], square, 0))
-        return Sums(s1, s1_lo, s2, s2_lo, acc.bad + (~ok).astype(jnp.int32))
+    squared, fold = _squared, _fold
 
     def body(k, carry):
         acc, previous = carry
@@ -121,6 +118,24 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     # are those of the unpipelined loop, bit for bit
     acc, last = lax.fori_loop(0, count, body, (sums, (zero, zero)))
     return fold(acc, last)
+
+
+def _squared(value: Array) -> tuple[Array, Array]:
+    # L² is formed with the sample, not in the fold: there LLVM could contract it into the
+    # TwoSum's adds (fma), differently in and after the loop
+    return value, value * value
+
+
+def _fold(acc: Sums, previous: tuple[Array, Array]) -> Sums:
+    """``acc`` plus one sample ``(L, L²)`` (TwoSum; a non-finite sample counts in ``bad``)."""
+    value, square = previous
+    # per component, not jnp.all over the channel axis: that is a reduction over a minor
+    # axis of 3, a kernel of its own in every sample step
+    ok = (jnp.isfinite(value[..., 0]) & jnp.isfinite(value[..., 1])
+          & jnp.isfinite(value[..., 2]))
+    s1, s1_lo = two_sum(acc.s1, acc.s1_lo, jnp.where(ok[..., None], value, 0))
+    s2, s2_lo = two_sum(acc.s2, acc.s2_lo, jnp.where(ok[..., None], square, 0))
+    return Sums(s1, s1_lo, s2, s2_lo, acc.bad + (~ok).astype(jnp.int32))
 
 
 def step_layout(num_tiles: int, batch_size: int) -> tuple[int, int]:

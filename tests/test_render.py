@@ -121,16 +121,18 @@ def test_mean_and_error_formula():
 
 @pytest.mark.slow  # ~30 s: a second compile (or a subprocess); CI runs it
 def test_two_devices_identical_to_one(tmp_path):
-    """Sharding tiles over two (host) devices changes nothing in the image."""
+    """Sharding tiles over two (host) devices changes nothing in the image (direct light and
+    the path tracer, whose lanes regenerate paths)."""
     code = textwrap.dedent("""
         import numpy as np, jax
         from jaxrt import scenes
         from jaxrt.render import render
         assert len(jax.devices()) == 2, jax.devices()
         s = scenes.cornell_box(width=12, height=10)
-        a = render(s, "mis", spp=2, seed=5, devices=1, progress=False)
-        b = render(s, "mis", spp=2, seed=5, devices=2, progress=False)
-        assert np.array_equal(a.image, b.image), np.abs(a.image - b.image).max()
+        for est in ("mis", "path"):
+            a = render(s, est, spp=2, seed=5, devices=1, progress=False)
+            b = render(s, est, spp=2, seed=5, devices=2, progress=False)
+            assert np.array_equal(a.image, b.image), (est, np.abs(a.image - b.image).max())
         print("OK")
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2")
