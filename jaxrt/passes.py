@@ -94,14 +94,12 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     into each of the Σx, Σx² and non-finite kernels and computed three times.
     """
     if est.name == "path":
-        # paths of unequal length: each lane runs its pixel's samples one after the other
-        def lane(pixel, acc):
-            stream = lambda k: Stream(sampler, seed, pixel, start + k, spp_total)
-            return pass_sums(scene, est, stream, count, acc, lambda a, v: _fold(a, _squared(v)))
-
-        for _ in range(pixels.ndim):
-            lane = jax.vmap(lane)
-        return lane(pixels, sums)
+        # paths of unequal length: lanes regenerate paths and are compacted (jaxrt.path)
+        stream = lambda pixel, k: Stream(sampler, seed, pixel, start + k, spp_total)
+        flat = jax.tree.map(lambda a: a.reshape((pixels.size,) + a.shape[pixels.ndim:]), sums)
+        out = pass_sums(scene, est, stream, pixels.reshape(-1), count, flat,
+                        lambda a, v: _fold(a, _squared(v)))
+        return jax.tree.map(lambda a, b: a.reshape(b.shape), out, sums)
 
     sample = lambda pixel, index: camera_sample(scene, est, pixel, index, seed, sampler,
                                                 spp_total)

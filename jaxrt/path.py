@@ -49,8 +49,12 @@ lane would make the whole batch wait for its longest path (on the 256² Cornell 
 lanes, unbounded: 22 % of lane-steps useful). In a render pass each lane instead carries
 its pixel's ``count`` samples one after the other (:func:`pass_sums`): when a lane's path
 ends, the same step folds its value into the pixel's sums and starts the lane's next camera
-ray (path regeneration), so a lane is idle only once its last sample is done. Samples are
-folded in index order, so the sums are those of the plain loop over samples, bit for bit.
+ray (path regeneration), so a lane is idle only once its last sample is done; and when at
+most a quarter of the lanes still run, those are gathered into a batch a quarter the size
+(the BVH's compaction). Samples are folded in index order, so the sums are those of the
+plain loop over samples, bit for bit. Useful lane-steps, 256² Cornell box, unbounded, 32
+samples per pass, per batch of 16 384 lanes: 22 % in lockstep (one path per lane), 55–71 %
+with regeneration, 75–87 % with regeneration and compaction (benchmarks/README.md).
 :func:`path` (one path from a given vertex: ``estimate_at``, ``camera_sample``) runs the
 same step without regeneration.
 
@@ -65,7 +69,7 @@ MIS weight and roulette probability is held fixed, ``β`` carries the derivative
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -173,42 +177,78 @@ def trace_path(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Path
                           lambda st: arrive(scene, est, *scatter(scene, est, st, s)), start)
 
 
-def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array], Stream], count: int,
-              acc, fold: Callable):
-    """``acc`` advanced by the samples ``0 … count−1`` of ONE pixel (``stream(k)`` is sample
-    k's stream), one path after another with regeneration (module notes).
+#: Lanes of a pass are compacted when the running ones fit in a quarter of them, down to this
+#: many (as the BVH's traversal: below it the fixed cost of a step's kernels dominates).
+MIN_COMPACT_LANES = 256
 
-    ``fold(acc, value)`` adds one sample's radiance (3,) to the pixel's sums; samples are
-    folded in order. Vmap over pixels: a lane waits only once its own samples are done.
-    Each sample's value is the one :func:`jaxrt.estimators.camera_sample` computes.
+
+class _Lane(NamedTuple):
+    pixel: Array  # () int32 flat pixel
+    k: Array  # () int32 the pass's sample in flight (−1 before the first, count: done)
+    st: PathState
+    acc: Any  # the pixel's sums
+
+
+def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Stream],
+              pixels: Array, count: int, acc, fold: Callable):
+    """``acc`` advanced by the samples ``0 … count−1`` of each pixel of ``pixels`` (N,),
+    each lane one path after another with regeneration (module notes); ``stream(pixel, k)``
+    is sample k's stream, ``acc`` has a leading axis of N.
+
+    ``fold(acc, value)`` adds one sample's radiance (3,) to a pixel's sums; a pixel's samples
+    are folded in order. Each sample's value is the one
+    :func:`jaxrt.estimators.camera_sample` computes. The lanes step in lockstep until at
+    most a quarter still run; those are gathered into a batch a quarter the size, and so on
+    down to :data:`MIN_COMPACT_LANES` (the BVH's schedule: only the schedule changes, not
+    any lane's steps).
     """
     dtype = acc.s1.dtype
-    s0 = stream(jnp.int32(0))
-    o, d = camera_ray(scene, s0.pixel, s0)
-    # no path in flight before the first step: a vertex of zeros (only its shape matters)
-    shape = jax.eval_shape(lambda: shading_point(scene, trace_from(scene, o, o, d).hit, -d))
-    nowhere = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shape)
-    idle = PathState(nowhere, jnp.ones(3, dtype), jnp.zeros(3, dtype), jnp.int32(0),
-                     jnp.bool_(False))
 
-    def step(carry):
-        k, st, acc = carry  # k: the sample in flight (−1 before the first)
-        s = stream(k)
-        st, seg = scatter(scene, est, st, s)
+    def start(pixel, acc):
+        s0 = stream(pixel, jnp.int32(0))
+        o, d = camera_ray(scene, pixel, s0)
+        # no path in flight before the first step: a vertex of zeros (only its shape matters)
+        shape = jax.eval_shape(lambda: shading_point(scene, trace_from(scene, o, o, d).hit, -d))
+        nowhere = jax.tree.map(lambda a: jnp.zeros(a.shape, a.dtype), shape)
+        idle = PathState(nowhere, jnp.ones(3, dtype), jnp.zeros(3, dtype), jnp.int32(0),
+                         jnp.bool_(False))
+        return _Lane(pixel, jnp.int32(-1), idle, acc)
+
+    def step(lane: _Lane) -> _Lane:
+        pixel, k, st, acc = lane
+        st, seg = scatter(scene, est, st, stream(pixel, k))
         # a lane whose path has ended folds its sample and starts the next camera ray
         ended = ~st.active
         acc = _where(ended & (k >= 0), fold(acc, st.radiance), acc)
         k = jnp.where(ended, k + 1, k)
-        new = stream(k)
-        o, d = camera_ray(scene, new.pixel, new)
+        o, d = camera_ray(scene, pixel, stream(pixel, k))
         seg = _where(ended, Segment(o, d, o, jnp.zeros((), dtype), jnp.bool_(True)), seg)
         st = _where(ended, PathState(st.x, jnp.ones(3, dtype), jnp.zeros(3, dtype),
                                      jnp.int32(0), k < count), st)
-        return k, arrive(scene, est, st, seg), acc
+        return _Lane(pixel, k, arrive(scene, est, st, seg), acc)
 
-    # the last sample's path ends inside the loop; the step after folds it (k reaches count)
-    k, _, acc = lax.while_loop(lambda c: c[0] < count, step, (jnp.int32(-1), idle, acc))
-    return acc
+    # a sample's path ends inside the loop; the step after folds it (k reaches count)
+    running = lambda lanes: lanes.k < count
+    steps = jax.vmap(step)
+    lanes = jax.vmap(start)(pixels, acc)
+    n = pixels.shape[0]
+    ids = jnp.arange(n, dtype=jnp.int32)
+    out, width = acc, n
+    while width // 4 >= MIN_COMPACT_LANES:  # static: the widths are known at trace time
+        cap = width // 4
+        lanes = lax.while_loop(lambda c, cap=cap: jnp.sum(running(c)) > cap, steps, lanes)
+        # every lane's sums so far (final for the finished ones) ...
+        out = jax.tree.map(lambda o, a, ids=ids: o.at[ids].set(a, mode="drop"), out, lanes.acc)
+        # ... then the running lanes, in order, into a batch of `cap` (the rest: padding)
+        live = running(lanes)
+        (sel,) = jnp.nonzero(live, size=cap, fill_value=0)
+        pad = jnp.arange(cap) >= jnp.sum(live)
+        lanes = jax.tree.map(lambda a, sel=sel: a[sel], lanes)
+        lanes = lanes._replace(k=jnp.where(pad, count, lanes.k))
+        ids = jnp.where(pad, n, ids[sel])
+        width = cap
+    lanes = lax.while_loop(lambda c: jnp.any(running(c)), steps, lanes)
+    return jax.tree.map(lambda o, a: o.at[ids].set(a, mode="drop"), out, lanes.acc)
 
 
 def _where(c: Array, a, b):
