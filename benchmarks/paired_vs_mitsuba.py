@@ -1,13 +1,15 @@
-"""jaxrt ÷ Mitsuba 3 on the 256² Cornell box (MIS, 1 light + 1 BSDF sample), paired in one process.
+"""jaxrt ÷ Mitsuba 3 on the 256² Cornell box (MIS 1 + 1, or path tracing), paired in one process.
 
-    python benchmarks/paired_vs_mitsuba.py [--spp 32] [--rounds 4]
+    python benchmarks/paired_vs_mitsuba.py [--spp 32] [--rounds 4] [--estimator mis|path]
 
 Both renderers run in this process, in interleaved rounds (j m, m j, j m, …), so a change in
 the machine's load hits both. Each round is timed in wall seconds and in this process's CPU
 seconds (``time.process_time``: every thread of the process), so the report gives samples per
 wall second, samples per CPU-second and the cores each renderer kept busy. jaxrt runs its real
 render pass (:class:`jaxrt.passes.RenderPass`, the program ``render`` runs); Mitsuba its
-``direct`` integrator (``llvm_ad_rgb``, box filter; ``mitsuba_cornell.py``). Also reported:
+``direct`` integrator (``llvm_ad_rgb``, box filter; ``mitsuba_cornell.py``), or with
+``--estimator path`` jaxrt's path tracer against Mitsuba's ``path`` integrator (both
+unbounded, Russian roulette from depth 5). Also reported:
 jaxrt's compile time, the kernel count of its compiled pass, and the first frame (a fresh
 ``jaxrt.render`` of 64 spp with its compile, in a new process so nothing is cached).
 """
@@ -55,7 +57,14 @@ def first_frame_seconds() -> tuple[float, float]:
     return total, compile_s
 
 
-def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
+#: Mitsuba 3's integrator for each jaxrt estimator compared (the same estimator of the image).
+MITSUBA_INTEGRATOR = {
+    "mis": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1},
+    "path": {"type": "path", "max_depth": -1, "rr_depth": 5},
+}
+
+
+def paired(spp: int = 32, rounds: int = 4, log=print, estimator: str = "mis") -> dict:
     """Interleaved rounds of jaxrt and Mitsuba on the same scene; see the module docstring."""
     import jax
 
@@ -66,7 +75,7 @@ def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
     from jaxrt.passes import RenderPass
     from jaxrt.scenes import cornell_box
 
-    est = make_estimator("mis")
+    est = make_estimator(estimator)
     scene = prepare_scene(cornell_box(SIZE, SIZE), est)
     run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
                      spp_total=spp, batch_size=64)
@@ -74,7 +83,9 @@ def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
     kernels = hlo_kernels(run.compiled[spp][0].as_text())
     sums = run(run.zeros(), 0, spp)  # warm-up
     mi = mc.import_mitsuba(mc.DEFAULT_VARIANT)
-    msc = mc.load_cornell(SIZE, SIZE, "box", 1.0, mc.DEFAULT_VARIANT)
+    desc = mc.cornell_scene_dict(SIZE, SIZE, "box", 1.0, mc.DEFAULT_VARIANT)
+    desc["integrator"] = MITSUBA_INTEGRATOR[estimator]
+    msc = mi.load_dict(desc)
     mc._render_once(mi, msc, spp, 0)  # warm-up (Dr.Jit kernels)
     times = {"jaxrt": [], "mitsuba": []}
     load_start = os.getloadavg()
@@ -87,8 +98,8 @@ def paired(spp: int = 32, rounds: int = 4, log=print) -> dict:
                 mc._render_once(mi, msc, spp, r + 1)
             times[name].append((time.perf_counter() - w0, time.process_time() - c0))
     n = SIZE * SIZE * spp
-    res = {"spp": spp, "rounds": rounds, "load_start": load_start, "load_end": os.getloadavg(),
-           "jaxrt_compile_s": t_compile, "jaxrt_kernels": kernels}
+    res = {"estimator": estimator, "spp": spp, "rounds": rounds, "load_start": load_start,
+           "load_end": os.getloadavg(), "jaxrt_compile_s": t_compile, "jaxrt_kernels": kernels}
     for name, t in times.items():
         wall = float(np.median([w for w, _ in t]))
         cpu = float(np.median([c for _, c in t]))
@@ -111,10 +122,11 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--spp", type=int, default=32)
     parser.add_argument("--rounds", type=int, default=4)
+    parser.add_argument("--estimator", choices=tuple(MITSUBA_INTEGRATOR), default="mis")
     parser.add_argument("--first-frame", action="store_true",
                         help="also time a first frame in a fresh process")
     a = parser.parse_args(argv)
-    res = paired(a.spp, a.rounds)
+    res = paired(a.spp, a.rounds, estimator=a.estimator)
     if a.first_frame:
         total, compile_s = first_frame_seconds()
         res["first_frame_s"], res["first_frame_compile_s"] = total, compile_s

@@ -51,10 +51,12 @@ its pixel's ``count`` samples one after the other (:func:`pass_sums`): when a la
 ends, the same step folds its value into the pixel's sums and starts the lane's next camera
 ray (path regeneration), so a lane is idle only once its last sample is done; and when at
 most a quarter of the lanes still run, those are gathered into a batch a quarter the size
-(the BVH's compaction). Samples are folded in index order, so the sums are those of the
-plain loop over samples, bit for bit. Useful lane-steps, 256² Cornell box, unbounded, 32
-samples per pass, per batch of 16 384 lanes: 22 % in lockstep (one path per lane), 55–71 %
-with regeneration, 75–87 % with regeneration and compaction (benchmarks/README.md).
+(the BVH's compaction, once: every stage is a copy of the step in the compiled program).
+Samples are folded in index order, so the sums are those of the plain loop over samples,
+bit for bit. Useful lane-steps, 256² Cornell box, unbounded, 32 samples per pass, per batch
+of 16 384 lanes: 22 % in lockstep (one path per lane), 55–71 % with regeneration, 71–83 %
+with regeneration and one compaction (75–87 % with three, for 3× the compile time;
+benchmarks/README.md).
 :func:`path` (one path from a given vertex: ``estimate_at``, ``camera_sample``) runs the
 same step without regeneration.
 
@@ -177,8 +179,10 @@ def trace_path(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Path
                           lambda st: arrive(scene, est, *scatter(scene, est, st, s)), start)
 
 
-#: Lanes of a pass are compacted when the running ones fit in a quarter of them, down to this
-#: many (as the BVH's traversal: below it the fixed cost of a step's kernels dominates).
+#: Lanes of a pass are compacted when the running ones fit in a quarter of them, at most
+#: this many times, never below MIN_COMPACT_LANES (as the BVH's traversal: below it the fixed
+#: cost of a step's kernels dominates). Every stage is a copy of the step in the program.
+MAX_COMPACTIONS = 1
 MIN_COMPACT_LANES = 256
 
 
@@ -234,7 +238,9 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
     n = pixels.shape[0]
     ids = jnp.arange(n, dtype=jnp.int32)
     out, width = acc, n
-    while width // 4 >= MIN_COMPACT_LANES:  # static: the widths are known at trace time
+    for _ in range(MAX_COMPACTIONS):  # static: the widths are known at trace time
+        if width // 4 < MIN_COMPACT_LANES:
+            break
         cap = width // 4
         lanes = lax.while_loop(lambda c, cap=cap: jnp.sum(running(c)) > cap, steps, lanes)
         # every lane's sums so far (final for the finished ones) ...
