@@ -13,7 +13,9 @@ arrays jaxrt renders, so the geometry can never drift) and its camera constants:
 - ``perspective`` sensor, ``to_world = look_at(eye, target, up)``, vertical fov
   (``fov_axis="y"``), ``hdrfilm`` with a ``box`` reconstruction filter (one sample lands in
   one pixel, like jaxrt's box filter), ``independent`` sampler, ``direct`` integrator with
-  one emitter and one BSDF sample combined by MIS (power heuristic).
+  one emitter and one BSDF sample combined by MIS (power heuristic) by default; any other
+  integrator dict can be passed (``PATH_INTEGRATOR``: Mitsuba's ``path`` with unbounded depth
+  and Russian roulette from depth 5, jaxrt's ``estimator="path"`` defaults).
 
 Image orientation: Mitsuba's ``look_at`` puts camera +x on the world ``up × view`` side and
 its film's column index grows towards camera −x, i.e. towards jaxrt's ``right = up × back``;
@@ -30,6 +32,7 @@ from __future__ import annotations
 
 import functools
 import glob
+import json
 import os
 import re
 import time
@@ -43,6 +46,23 @@ CACHE_DIR = Path(__file__).resolve().parent / ".cache"
 # seeds) shares random numbers with the reference it is compared against.
 REFERENCE_SEED = 1_000_000
 _PASS_SPP = 256  # at most this many samples per pixel in one Mitsuba launch (bounds memory)
+DIRECT_INTEGRATOR = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1}
+#: Mitsuba's path tracer as jaxrt's ``render(scene, "path")`` defaults: unbounded, RR from 5
+PATH_INTEGRATOR = {"type": "path", "max_depth": -1, "rr_depth": 5}
+
+
+def _integrator_key(integrator: dict | None) -> str:
+    """A hashable, canonical form of an integrator dict (None: the default ``direct``)."""
+    return json.dumps(DIRECT_INTEGRATOR if integrator is None else integrator, sort_keys=True)
+
+
+def _integrator_tag(integrator: dict | None) -> str:
+    """'' for the default direct integrator (cache file names unchanged), else e.g.
+    ``_path_max_depth-1_rr_depth5``."""
+    if integrator is None or integrator == DIRECT_INTEGRATOR:
+        return ""
+    rest = "_".join(f"{k}{v}" for k, v in sorted(integrator.items()) if k != "type")
+    return f"_{integrator['type']}" + (f"_{rest}" if rest else "")
 
 
 def _find_libllvm() -> str | None:
@@ -114,12 +134,14 @@ def _mi_mesh(mi, m):
 
 
 def cornell_scene_dict(width: int = 256, height: int = 256, rfilter: str = "box",
-                       light_scale: float = 1.0, variant: str = DEFAULT_VARIANT) -> dict:
+                       light_scale: float = 1.0, variant: str = DEFAULT_VARIANT,
+                       integrator: dict | None = None) -> dict:
     """The ``mi.load_dict`` description of jaxrt's Cornell box (shapes are live ``mi.Mesh``).
 
     ``rfilter``: ``"box"`` (matches jaxrt) or ``"gaussian"`` (Mitsuba's default, for the
     calibration figure). ``light_scale`` as in ``cornell_meshes`` (same power, smaller light).
     The sampler's ``sample_count`` is a placeholder: :func:`render_mitsuba` passes ``spp``.
+    ``integrator``: a Mitsuba integrator dict (default :data:`DIRECT_INTEGRATOR`).
     """
     mi = import_mitsuba(variant)
     cb = _cornell()
@@ -139,16 +161,23 @@ def cornell_scene_dict(width: int = 256, height: int = 256, rfilter: str = "box"
                  "rfilter": {"type": rfilter}, "pixel_format": "rgb"},
         "sampler": {"type": "independent", "sample_count": 1},
     }
-    scene["integrator"] = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1}
+    scene["integrator"] = dict(DIRECT_INTEGRATOR if integrator is None else integrator)
     return scene
 
 
-@functools.lru_cache(maxsize=8)
 def load_cornell(width: int = 256, height: int = 256, rfilter: str = "box",
-                 light_scale: float = 1.0, variant: str = DEFAULT_VARIANT):
+                 light_scale: float = 1.0, variant: str = DEFAULT_VARIANT,
+                 integrator: dict | None = None):
     """The loaded ``mi.Scene`` (cached per arguments: loading is cheap, JIT kernels are reused)."""
+    return _load_cornell(width, height, rfilter, light_scale, variant,
+                         _integrator_key(integrator))
+
+
+@functools.lru_cache(maxsize=8)
+def _load_cornell(width, height, rfilter, light_scale, variant, integrator_key):
     mi = import_mitsuba(variant)
-    return mi.load_dict(cornell_scene_dict(width, height, rfilter, light_scale, variant))
+    return mi.load_dict(cornell_scene_dict(width, height, rfilter, light_scale, variant,
+                                           json.loads(integrator_key)))
 
 
 def _render_once(mi, scene, spp: int, seed: int) -> np.ndarray:
@@ -158,19 +187,22 @@ def _render_once(mi, scene, spp: int, seed: int) -> np.ndarray:
 
 def render_mitsuba(spp: int, seed: int = 0, width: int = 256, height: int = 256,
                    rfilter: str = "box", light_scale: float = 1.0,
-                   variant: str = DEFAULT_VARIANT) -> tuple[np.ndarray, float]:
+                   variant: str = DEFAULT_VARIANT,
+                   integrator: dict | None = None) -> tuple[np.ndarray, float]:
     """Render the Cornell box with Mitsuba 3: ``(image (H, W, 3) float32, seconds)``.
 
     Each pixel is the box-filtered mean of ``spp`` independent direct-lighting samples
     (radiance, W·sr⁻¹·m⁻², linear RGB). ``seconds`` is the wall time of ``mi.render`` until
     the image is on the host, scene loading excluded; the first call for a given variant and
     size also JIT-compiles Dr.Jit kernels (reused from ``~/.drjit`` across processes), so
-    time a warm-up render first. The same ``seed`` gives the same image.
+    time a warm-up render first. The same ``seed`` gives the same image. ``integrator``: as in
+    :func:`cornell_scene_dict` (each sample is then that integrator's estimate).
     """
     if int(spp) < 1:
         raise ValueError(f"spp must be ≥ 1, got {spp}")
     mi = import_mitsuba(variant)
-    scene = load_cornell(int(width), int(height), rfilter, float(light_scale), variant)
+    scene = load_cornell(int(width), int(height), rfilter, float(light_scale), variant,
+                         integrator)
     t0 = time.perf_counter()
     img = _render_once(mi, scene, spp, seed)
     return img, time.perf_counter() - t0
@@ -235,7 +267,8 @@ def mitsuba_samples_per_second(spp: int = 64, repeats: int = 5, width: int = 256
 
 
 def render_mitsuba_passes(spp: int, seed: int, width: int = 256, height: int = 256,
-                          variant: str = DEFAULT_VARIANT) -> tuple[np.ndarray, float]:
+                          variant: str = DEFAULT_VARIANT,
+                          integrator: dict | None = None) -> tuple[np.ndarray, float]:
     """Like :func:`render_mitsuba` but in launches of at most 256 spp, averaged.
 
     Pass ``k`` uses seed ``seed + k``; with a box filter every sample has weight 1, so the
@@ -249,15 +282,46 @@ def render_mitsuba_passes(spp: int, seed: int, width: int = 256, height: int = 2
     acc = np.zeros((int(height), int(width), 3), np.float64)
     total = 0.0
     for k in range(n_pass):
-        img, dt = render_mitsuba(per, seed + k, width, height, "box", 1.0, variant)
+        img, dt = render_mitsuba(per, seed + k, width, height, "box", 1.0, variant, integrator)
         acc += img
         total += dt
     return (acc / n_pass).astype(np.float32), total
 
 
-def reference_path(spp: int, width: int, height: int, variant: str = DEFAULT_VARIANT) -> Path:
+def reference_path(spp: int, width: int, height: int, variant: str = DEFAULT_VARIANT,
+                   integrator: dict | None = None, suffix: str = "") -> Path:
     """Where :func:`mitsuba_reference` caches its image (``benchmarks/.cache/…exr``)."""
-    return CACHE_DIR / f"mitsuba_cornell_{variant}_{width}x{height}_{spp}spp.exr"
+    tag = _integrator_tag(integrator)
+    return CACHE_DIR / f"mitsuba_cornell_{variant}{tag}_{width}x{height}_{spp}spp{suffix}.exr"
+
+
+def mitsuba_reference_with_error(spp_per_pass: int = 64, passes: int = 64, width: int = 64,
+                                 height: int = 64, variant: str = DEFAULT_VARIANT,
+                                 integrator: dict | None = None,
+                                 refresh: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Mitsuba's converged box and its per-pixel standard error: ``(image, stderr)`` (H, W, 3).
+
+    ``passes`` independent renders of ``spp_per_pass`` spp (seeds ``REFERENCE_SEED + k``); the
+    image is their mean and the standard error the standard deviation of the pass images over
+    √passes (Mitsuba reports no error of its own). Cached as two EXRs under
+    ``benchmarks/.cache/`` (``…_mean.exr``, ``…_stderr.exr``).
+    """
+    from jaxrt.io import read_exr, write_exr
+
+    spp = int(spp_per_pass) * int(passes)
+    paths = [reference_path(spp, int(width), int(height), variant, integrator,
+                            f"_{int(passes)}passes_{what}") for what in ("mean", "stderr")]
+    if all(p.exists() for p in paths) and not refresh:
+        return read_exr(paths[0])[0], read_exr(paths[1])[0]
+    imgs = np.stack([render_mitsuba(spp_per_pass, REFERENCE_SEED + k, width, height, "box", 1.0,
+                                    variant, integrator)[0].astype(np.float64)
+                     for k in range(int(passes))])
+    mean = imgs.mean(0).astype(np.float32)
+    stderr = (imgs.std(0, ddof=1) / np.sqrt(len(imgs))).astype(np.float32)
+    paths[0].parent.mkdir(parents=True, exist_ok=True)
+    write_exr(paths[0], mean)
+    write_exr(paths[1], stderr)
+    return mean, stderr
 
 
 def mitsuba_reference(spp: int = 4096, width: int = 256, height: int = 256,
