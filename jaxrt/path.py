@@ -230,7 +230,8 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
         st, seg = scatter(scene, est, st, stream(pixel, k))
         # a lane whose path has ended folds its sample and starts the next camera ray
         ended = ~st.active
-        acc = _where(ended & (k >= 0), fold(acc, st.radiance), acc)
+        # (lanes past their last sample, or padding, step on without folding anything)
+        acc = _where(ended & (k >= 0) & (k < count), fold(acc, st.radiance), acc)
         k = jnp.where(ended, k + 1, k)
         o, d = camera_ray(scene, pixel, stream(pixel, k))
         seg = _where(ended, Segment(o, d, o, jnp.zeros((), dtype), jnp.bool_(True)), seg)

@@ -79,6 +79,16 @@ def test_pass_chunking_changes_no_bit():
     assert one.nonfinite == 0 and np.mean(one.stderr > 0) > 0.5  # noisy: the test can fail
 
 
+def test_time_budget_target_error_and_progress_hold_for_paths(capsys):
+    """render's stopping rules drive the path tracer as they drive the direct estimators."""
+    scene = cornell_box(16, 12)
+    r = jaxrt.render(scene, "path", time_budget=0.5, spp_per_pass=1, progress=True)
+    assert r.stopped_by == "time_budget" and r.spp >= 1 and r.passes == r.spp
+    assert "spp" in capsys.readouterr().err  # the progress bar ran
+    r = jaxrt.render(scene, "path", spp=256, target_error=0.2, spp_per_pass=4, progress=False)
+    assert r.stopped_by == "target_error" and r.spp < 256 and r.relative_error <= 0.2
+
+
 def test_max_depth_2_is_mis_from_the_same_random_numbers():
     """The first vertex uses mis's random dimensions, so the same seed gives mis's image up
     to float rounding (max |diff| measured 4.5e-8 at 32², values ~0.1–18)."""
