@@ -10,8 +10,10 @@ unbounded, Russian roulette from depth 5, box filter, independent sampler) rende
 seeds disjoint from the runs'; its own noise inflates the measured MSE by ≈ 1 + spp/2048).
 jaxrt's levels are passes of the program ``render`` runs (``convergence.progressive`` with one
 pass per level, every pass compiled before the clock starts); Mitsuba's are ``mi.render``
-calls after a warm-up. Writes ``benchmarks/plots/path_rmse_vs_time.png`` and prints the time
-each needs to reach RMSE 0.05 and 0.03 (log-log interpolation, ``time_to_rmse``).
+calls after a warm-up. jaxrt's ``mis`` (direct light only) is run the same way against
+Mitsuba's converged direct image, for the cost of the indirect light at equal relative error.
+Writes ``benchmarks/plots/path_rmse_vs_time.png`` and prints the time each needs to reach RMSE
+0.05 and 0.03 (log-log interpolation, ``time_to_rmse``).
 
 ``indirect``: ``mis`` (direct light, 1 + 1 samples) and ``path`` at 256 spp, their region
 means (walls, floor, blocks) and what the indirect light adds, in numbers and in
@@ -80,14 +82,15 @@ def mitsuba_rows(reference: np.ndarray, levels=LEVELS, seed: int = 100) -> list[
     return rows
 
 
-def jaxrt_rows(reference: np.ndarray, levels=LEVELS) -> tuple[list[dict], float]:
+def jaxrt_rows(reference: np.ndarray, levels=LEVELS,
+               estimator: str = "path") -> tuple[list[dict], float]:
     """jaxrt's (spp, seconds, rmse) at each level, progressive passes of the render program."""
     from convergence import progressive
 
     from jaxrt.scenes import cornell_box
 
-    rows, t_compile = progressive(cornell_box(reference.shape[1], reference.shape[0]), "path",
-                                  levels=levels, pass_spp=None)
+    rows, t_compile = progressive(cornell_box(reference.shape[1], reference.shape[0]),
+                                  estimator, levels=levels, pass_spp=None)
     return [{"spp": r["spp"], "seconds": r["seconds"], "rmse": mc.rmse(r["image"], reference)}
             for r in rows], t_compile
 
@@ -98,20 +101,27 @@ def convergence(out: Path = HERE / "plots" / "path_rmse_vs_time.png") -> dict:
     load = os.getloadavg()
     jx, t_compile = jaxrt_rows(reference)
     mt = mitsuba_rows(reference)
+    # direct light alone (mis), against Mitsuba's converged direct image: what the indirect
+    # light costs in time for the same relative error
+    direct_ref = mc.mitsuba_reference(4096, SIZE, SIZE)
+    jd, _ = jaxrt_rows(direct_ref, estimator="mis")
+    for rows, ref in ((jx, reference), (mt, reference), (jd, direct_ref)):
+        for r in rows:
+            r["rel_rmse"] = r["rmse"] / float(np.mean(ref))
     res = {"load": (load, os.getloadavg()), "jaxrt_compile_s": t_compile, "jaxrt": jx,
-           "mitsuba": mt}
+           "mitsuba": mt, "jaxrt_direct": jd}
     for target in (0.05, 0.03):
         tj, tm = mc.time_to_rmse(jx, target), mc.time_to_rmse(mt, target)
         res[f"time_to_{target}"] = {"jaxrt_s": tj, "mitsuba_s": tm, "ratio": tj / tm}
         print(f"RMSE {target}: jaxrt {tj:.2f} s, Mitsuba {tm:.2f} s: jaxrt/Mitsuba {tj / tm:.2f}")
-    for name, rows in (("jaxrt", jx), ("mitsuba", mt)):
+    for name, rows in (("jaxrt", jx), ("mitsuba", mt), ("jaxrt mis", jd)):
         print(name, " ".join(f"{r['spp']}:{r['seconds']:.2f}s/{r['rmse']:.4f}" for r in rows))
     print(f"load {res['load']}")
-    _plot(jx, mt, out)
+    _plot(jx, mt, jd, out)
     return res
 
 
-def _plot(jx: list[dict], mt: list[dict], out: Path) -> None:
+def _plot(jx: list[dict], mt: list[dict], jd: list[dict], out: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -119,11 +129,13 @@ def _plot(jx: list[dict], mt: list[dict], out: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(5.5, 4))
     for name, rows, style in (("jaxrt path", jx, "o-"), ("Mitsuba 3 path (llvm_ad_rgb)", mt,
-                                                          "s-")):
-        ax.loglog([r["seconds"] for r in rows], [r["rmse"] for r in rows], style, label=name)
+                                                          "s-"),
+                              ("jaxrt mis (direct light only)", jd, "^--")):
+        ax.loglog([r["seconds"] for r in rows], [r["rel_rmse"] for r in rows], style,
+                  label=name)
     ax.set_xlabel("render time (s, wall)")
-    ax.set_ylabel("RMSE vs converged image")
-    ax.set_title("Cornell box 256², path tracing (unbounded, RR)")
+    ax.set_ylabel("RMSE / mean radiance vs converged image")
+    ax.set_title("Cornell box 256², box filter")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,8 @@ Run: ``DRJIT_LIBLLVM_PATH=libLLVM-19.so pytest benchmarks/test_bench_path_vs_mit
 
 Both render the 32² box (:mod:`mitsuba_cornell` builds Mitsuba's scene from jaxrt's own
 arrays) with unbounded paths and Russian roulette from depth 5 (``max_depth=-1,
-rr_depth=5`` in both: jaxrt follows Mitsuba's depth convention and roulette rule).
+rr_depth=5`` in both: jaxrt follows Mitsuba's depth convention; its roulette survives
+with max β rather than min(max β, 0.95): the same expectation, another variance).
 Mitsuba's image is a cached reference of 64 independent passes of 256 spp
 (:func:`mitsuba_cornell.mitsuba_reference_with_error`); its standard error is the spread of
 the passes over √64. jaxrt renders 2 048 spp and reports its own standard error.
