@@ -3,12 +3,17 @@
     python benchmarks/gradients.py memory     # fresh processes, ~3 min on the 2-core machine
     python benchmarks/gradients.py cost       # one process, interleaved rounds, ~2 min
     python benchmarks/gradients.py batch      # vmap over 8 albedo sets vs a loop of render
+    python benchmarks/gradients.py zscores    # z of every analytic derivative check, ~2 min
 
 memory: peak resident set (``ru_maxrss``) of a fresh process that computes the gradient of
 an L2 loss w.r.t. every :func:`jaxrt.differentiable.scene_params` of the 64² Cornell box
 (the loss's cotangent from a 4-spp image), (a) by :func:`jaxrt.image_vjp` in passes of 4 spp,
 (b) by one ``jax.vjp`` of :func:`jaxrt.estimate_image` (the whole sample loop taped), at
 16 … 256 spp. A process that only renders the image (``spp`` samples) sets the baseline.
+
+zscores: the table of z = (estimate − reference) / standard error of every derivative check
+against a closed form or a float64 quadrature in ``tests/test_differentiable.py`` (the same
+functions, seeds and sample counts the tests use), parameter × estimator.
 
 cost: one derivative pass (``jax.vjp`` of a 4-spp pass, :func:`jaxrt.differentiable._vjp_pass`)
 against one primal pass of the same samples (the same program ``render`` runs), 64² Cornell
@@ -22,6 +27,7 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -107,6 +113,37 @@ def cost(size: int = 64, count: int = 4, rounds: int = 6) -> None:
           f"(median {np.median(tg) / np.median(tp):.2f}×); compile {t_cp:.1f} s / {t_cg:.1f} s")
 
 
+def zscores() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    import test_differentiable as td
+
+    from jaxrt.estimators import ESTIMATORS
+
+    cols = {e: {} for e in ESTIMATORS}
+    t0 = time.perf_counter()
+    for e in ESTIMATORS:
+        checks = td.emission_checks(e) + td.light_checks(e) + td.env_map_checks(e)
+        checks += td.phong_checks(e)
+        if e in ("bsdf", "mis", "mis_one_sample"):
+            for name in ("ggx", "phong"):
+                checks += td.sampler_dependent_checks(name, e)
+        for c in checks:
+            for name, z in zip(c.params, c.z, strict=True):
+                if name is not None:
+                    cols[e][name] = float(z)
+    rows = list(dict.fromkeys(k for e in ESTIMATORS for k in cols[e]))
+    print(f"| parameter | {' | '.join(ESTIMATORS)} |")
+    print("|---|" + "---:|" * len(ESTIMATORS))
+    for r in rows:
+        cells = [f"{cols[e][r]:+.2f}" if r in cols[e] else "—" for e in ESTIMATORS]
+        print(f"| {r} | {' | '.join(cells)} |")
+    zs = np.array([z for e in ESTIMATORS for z in cols[e].values()])
+    print(f"\n{len(zs)} checks in {time.perf_counter() - t0:.0f} s: "
+          f"max |z| {np.abs(zs).max():.2f}, mean z {zs.mean():+.2f}, "
+          f"rms z {np.sqrt(np.mean(zs**2)):.2f} (≈ 1 if unbiased with right standard errors), "
+          f"{int(np.sum(np.abs(zs) > 2))} with |z| > 2")
+
+
 def batch(size: int = 32, spp: int = 4, n: int = 8) -> None:
     scene = scenes.cornell_box(size, size)
     kd = scene_params(scene)["materials.kd"]
@@ -137,4 +174,4 @@ if __name__ == "__main__":
     if sys.argv[1] == "child":
         child(sys.argv[2], int(sys.argv[3]))
     else:
-        {"memory": memory, "cost": cost, "batch": batch}[sys.argv[1]]()
+        {"memory": memory, "cost": cost, "batch": batch, "zscores": zscores}[sys.argv[1]]()

@@ -31,6 +31,12 @@ this over differentiating the sample (reparameterisation) because a sampled dire
 moves with θ crosses the edges of emitters and occluders, and autodiff misses those boundary
 terms (a biased derivative; ``tests/test_differentiable.py`` shows it).
 
+The identity needs p > 0 wherever ∂_θ f ≠ 0. Light sampling breaks it for a light that
+power-based selection never picks (zero power) and for an environment texel the map's
+sampler never draws (zero luminance): their derivative is 0 under light sampling although
+the image depends on them. MIS's BSDF samples still reach black area lights and texels;
+nothing reaches a black point, spot or directional light (benchmarks/README.md, "Gradients").
+
 What is not: geometry (vertices, camera, light positions and shapes, environment rotation).
 Visibility makes the image discontinuous in it, so derivatives w.r.t. it raise a
 ``ValueError`` (:func:`jaxrt.scene.guard_geometry`); never silently wrong or zero.
