@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 import jaxrt
-from jaxrt import analytic, scenes
+from jaxrt import analytic, differentiable, scenes
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.differentiable import (
     DERIVATIVE_SEED_XOR,
+    GRAD_LANES,
     derivative_at,
     estimate_image,
     gradient,
@@ -100,14 +101,24 @@ def test_geometry_derivatives_raise_for_jvp_vjp_and_grad():
     assert np.all(np.isfinite(g)) and np.max(np.abs(g)) > 0
 
 
-def test_image_vjp_in_passes_is_the_vjp_of_the_image():
-    """Pass-by-pass accumulation (1 spp per pass) equals one jax.vjp over all 4 spp."""
-    theta = {k: v for k, v in scene_params(CORNELL).items()
+@pytest.mark.parametrize("accel, spp, spp_per_pass, layout, grad_lanes", [
+    ("auto", 4, 1, dict(tile_size=256, batch_size=64), GRAD_LANES),
+    ("bvh", 8, 4, dict(tile_size=16, batch_size=3), 96)])
+def test_image_vjp_in_passes_is_the_vjp_of_the_image(accel, spp, spp_per_pass, layout,
+                                                      grad_lanes, monkeypatch):
+    """Pass-by-pass accumulation equals one jax.vjp over all samples: 1 spp per pass; and
+    on a BVH scene whose 4 tiles run in 2 steps of 3 (the last padded), 2 passes of 4 spp,
+    each folded as 2 grads of 2 sample indices (96 lanes per grad)."""
+    monkeypatch.setattr(differentiable, "GRAD_LANES", grad_lanes)
+    scene = CORNELL if accel == "auto" else scenes.cornell_box(8, 8, accel="bvh")
+    theta = {k: v for k, v in scene_params(scene).items()
              if k in ("materials.kd", "triangle.radiance")}
     c = jax.random.normal(jax.random.key(0), (8, 8, 3))
-    _, vjp = jax.vjp(lambda t: estimate_image(with_params(CORNELL, t), spp=4, seed=2), theta)
+    _, vjp = jax.vjp(lambda t: estimate_image(with_params(scene, t), spp=spp, seed=2, **layout),
+                     theta)
     ref = vjp(c)[0]
-    got = image_vjp(CORNELL, c, spp=4, spp_per_pass=1, seed=2, params=tuple(theta))
+    got = image_vjp(scene, c, spp=spp, spp_per_pass=spp_per_pass, seed=2, params=tuple(theta),
+                    **layout)
     for k in theta:
         assert got[k].shape == theta[k].shape
         np.testing.assert_allclose(got[k], ref[k], rtol=1e-4, atol=1e-6 * np.abs(ref[k]).max())
