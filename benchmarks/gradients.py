@@ -3,16 +3,24 @@
     python benchmarks/gradients.py memory     # fresh processes, ~3 min on the 2-core machine
     python benchmarks/gradients.py cost       # one process, interleaved rounds, ~2 min
     python benchmarks/gradients.py batch      # vmap over 8 albedo sets vs a loop of render
+    python benchmarks/gradients.py zscores    # z of every analytic derivative check, ~2 min
 
 memory: peak resident set (``ru_maxrss``) of a fresh process that computes the gradient of
 an L2 loss w.r.t. every :func:`jaxrt.differentiable.scene_params` of the 64² Cornell box
-(the loss's cotangent from a 4-spp image), (a) by :func:`jaxrt.image_vjp` in passes of 4 spp,
+(the loss's cotangent from a 4-spp image), (a) by :func:`jaxrt.image_vjp` in its default
+passes (render's size: all ≤ 256 spp in one pass at 64²),
 (b) by one ``jax.vjp`` of :func:`jaxrt.estimate_image` (the whole sample loop taped), at
 16 … 256 spp. A process that only renders the image (``spp`` samples) sets the baseline.
 
-cost: one derivative pass (``jax.vjp`` of a 4-spp pass, :func:`jaxrt.differentiable._vjp_pass`)
-against one primal pass of the same samples (the same program ``render`` runs), 64² Cornell
-box, MIS; both compiled first, then timed alternately (A B B A …), best of 6.
+zscores: the table of z = (estimate − reference) / standard error of every derivative check
+against a closed form or a float64 quadrature in ``tests/test_differentiable.py`` (the same
+functions, seeds and sample counts the tests use), parameter × estimator.
+
+cost: one derivative pass (:func:`jaxrt.differentiable._vjp_pass`) against one primal pass of
+the same samples (the program ``render`` runs, with its compiler options), Cornell box, MIS,
+64² at 4 spp and 256² at 1 spp (image_vjp's default pass there); both compiled first, then
+timed alternately (A B B A …) for 10 rounds, wall and process CPU time per round; ratios per
+round (median and range), the machine's load before and after.
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import resource
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +46,7 @@ from jaxrt.differentiable import (
     scene_params,
     with_params,
 )
-from jaxrt.estimators import make_estimator, prepare_scene
+from jaxrt.estimators import COMPILER_OPTIONS, make_estimator, prepare_scene
 
 
 def _maxrss_mb() -> float:
@@ -53,7 +62,7 @@ def child(mode: str, spp: int) -> None:
         np.asarray(estimate_image(scene, spp=spp))
     elif mode == "passes":
         c = 2 * (estimate_image(scene, spp=4) - target) / target.size
-        g = image_vjp(scene, c, spp=spp, spp_per_pass=4, seed=1)
+        g = image_vjp(scene, c, spp=spp, seed=1)  # default passes (render's size)
         np.asarray(g["materials.kd"])
     else:
         _, vjp = jax.vjp(lambda t: estimate_image(with_params(scene, t), spp=spp, seed=1), theta)
@@ -64,7 +73,7 @@ def child(mode: str, spp: int) -> None:
 
 
 def memory() -> None:
-    print("| spp | image only (MB) | image_vjp, 4 spp/pass (MB) | one jax.vjp (MB) |")
+    print("| spp | image only (MB) | image_vjp, default passes (MB) | one jax.vjp (MB) |")
     print("|---:|---:|---:|---:|")
     for spp in (16, 64, 256):
         row = []
@@ -75,36 +84,88 @@ def memory() -> None:
         print(f"| {spp} | {row[0]:.0f} | {row[1]:.0f} | {row[2]:.0f} |", flush=True)
 
 
-def cost(size: int = 64, count: int = 4, rounds: int = 6) -> None:
+def _uptime() -> str:
+    return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+
+
+def cost(rounds: int = 10) -> None:
+    """Primal pass vs gradient pass of the same samples, in one process, interleaved."""
+    print(_uptime())
+    for size, count in ((64, 4), (256, 1)):
+        _cost(size, count, rounds)
+    print(_uptime())
+
+
+def _cost(size: int, count: int, rounds: int) -> None:
     est = make_estimator("mis")
     scene = prepare_scene(scenes.cornell_box(size, size), est)
     theta = scene_params(scene)
-    static = dict(est=est, sampler="independent", spp_total=count, count=count, tile_size=256,
-                  batch_size=64)
+    static = dict(est=est, sampler="independent", spp_total=count, count=count,
+                  tile_size=256, batch_size=64)
     c = jnp.ones((size, size, 3), jnp.float32)
     seed, start = jnp.uint32(0), jnp.int32(0)
-    primal = jax.jit(lambda s: _image_sums(s, seed, start, **static))
+    # the primal as render compiles it (its compiler options: 512-bit vectors)
+    primal = jax.jit(lambda s: _image_sums(s, seed, start, **static),
+                     compiler_options=COMPILER_OPTIONS)
     t0 = time.perf_counter()
-    primal(scene).block_until_ready()
+    primal = primal.lower(scene).compile()
     t_cp = time.perf_counter() - t0
     t0 = time.perf_counter()
-    jax.block_until_ready(_vjp_pass(scene, theta, c, seed, start, **static))
+    grad = _vjp_pass.lower(scene, theta, c, seed, start, **static).compile()
     t_cg = time.perf_counter() - t0
-    tp, tg = [], []
+    runs = {"primal": lambda: primal(scene),
+            "gradient": lambda: grad(scene, theta, c, seed, start)}
+    for f in runs.values():
+        jax.block_until_ready(f())
+    wall = {k: [] for k in runs}
+    cpu = {k: [] for k in runs}
     for r in range(rounds):
-        for which in ((0, 1) if r % 2 == 0 else (1, 0)):
-            t0 = time.perf_counter()
-            if which == 0:
-                primal(scene).block_until_ready()
-                tp.append(time.perf_counter() - t0)
-            else:
-                jax.block_until_ready(_vjp_pass(scene, theta, c, seed, start, **static))
-                tg.append(time.perf_counter() - t0)
+        for k in (("primal", "gradient") if r % 2 == 0 else ("gradient", "primal")):
+            w0, c0 = time.perf_counter(), time.process_time()
+            jax.block_until_ready(runs[k]())
+            wall[k].append(time.perf_counter() - w0)
+            cpu[k].append(time.process_time() - c0)
+    rw = np.array(wall["gradient"]) / np.array(wall["primal"])
+    rc = np.array(cpu["gradient"]) / np.array(cpu["primal"])
     samples = size * size * count
     print(f"{size}² Cornell MIS, {count} spp per pass, {len(theta)} parameter arrays: "
-          f"primal pass {min(tp) * 1e3:.0f} ms ({samples / min(tp) / 1e6:.2f} Msamples/s), "
-          f"gradient pass {min(tg) * 1e3:.0f} ms: ratio {min(tg) / min(tp):.2f}× "
-          f"(median {np.median(tg) / np.median(tp):.2f}×); compile {t_cp:.1f} s / {t_cg:.1f} s")
+          f"primal {min(wall['primal']) * 1e3:.0f} ms best "
+          f"({samples / min(wall['primal']) / 1e6:.2f} Msamples/s), gradient "
+          f"{min(wall['gradient']) * 1e3:.0f} ms best; gradient / primal per round: wall "
+          f"median {np.median(rw):.2f}× [{rw.min():.2f}–{rw.max():.2f}], CPU-seconds median "
+          f"{np.median(rc):.2f}× [{rc.min():.2f}–{rc.max():.2f}]; compile {t_cp:.1f} s / "
+          f"{t_cg:.1f} s", flush=True)
+
+
+def zscores() -> None:
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+    import test_differentiable as td
+
+    from jaxrt.estimators import ESTIMATORS
+
+    cols = {e: {} for e in ESTIMATORS}
+    t0 = time.perf_counter()
+    for e in ESTIMATORS:
+        checks = td.emission_checks(e) + td.light_checks(e) + td.env_map_checks(e)
+        checks += td.phong_checks(e)
+        if e in ("bsdf", "mis", "mis_one_sample"):
+            for name in ("ggx", "phong"):
+                checks += td.sampler_dependent_checks(name, e)
+        for c in checks:
+            for name, z in zip(c.params, c.z, strict=True):
+                if name is not None:
+                    cols[e][name] = float(z)
+    rows = list(dict.fromkeys(k for e in ESTIMATORS for k in cols[e]))
+    print(f"| parameter | {' | '.join(ESTIMATORS)} |")
+    print("|---|" + "---:|" * len(ESTIMATORS))
+    for r in rows:
+        cells = [f"{cols[e][r]:+.2f}" if r in cols[e] else "—" for e in ESTIMATORS]
+        print(f"| {r} | {' | '.join(cells)} |")
+    zs = np.array([z for e in ESTIMATORS for z in cols[e].values()])
+    print(f"\n{len(zs)} checks in {time.perf_counter() - t0:.0f} s: "
+          f"max |z| {np.abs(zs).max():.2f}, mean z {zs.mean():+.2f}, "
+          f"rms z {np.sqrt(np.mean(zs**2)):.2f} (≈ 1 if unbiased with right standard errors), "
+          f"{int(np.sum(np.abs(zs) > 2))} with |z| > 2")
 
 
 def batch(size: int = 32, spp: int = 4, n: int = 8) -> None:
@@ -137,4 +198,4 @@ if __name__ == "__main__":
     if sys.argv[1] == "child":
         child(sys.argv[2], int(sys.argv[3]))
     else:
-        {"memory": memory, "cost": cost, "batch": batch}[sys.argv[1]]()
+        {"memory": memory, "cost": cost, "batch": batch, "zscores": zscores}[sys.argv[1]]()

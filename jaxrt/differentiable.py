@@ -31,6 +31,12 @@ this over differentiating the sample (reparameterisation) because a sampled dire
 moves with θ crosses the edges of emitters and occluders, and autodiff misses those boundary
 terms (a biased derivative; ``tests/test_differentiable.py`` shows it).
 
+The identity needs p > 0 wherever ∂_θ f ≠ 0. Light sampling breaks it for a light that
+power-based selection never picks (zero power) and for an environment texel the map's
+sampler never draws (zero luminance): their derivative is 0 under light sampling although
+the image depends on them. MIS's BSDF samples still reach black area lights and texels;
+nothing reaches a black point, spot or directional light (benchmarks/README.md, "Gradients").
+
 What is not: geometry (vertices, camera, light positions and shapes, environment rotation).
 Visibility makes the image discontinuous in it, so derivatives w.r.t. it raise a
 ``ValueError`` (:func:`jaxrt.scene.guard_geometry`); never silently wrong or zero.
@@ -46,18 +52,20 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import Array
+from jax import Array, lax
 
+from jaxrt.bvh import BVH
 from jaxrt.estimators import (
     COMPILER_OPTIONS,
     Estimator,
     PointEstimate,
+    camera_sample,
     make_estimator,
     prepare_scene,
     samples_at,
 )
 from jaxrt.passes import LANES, render_tiles, step_layout, zero_sums
-from jaxrt.render import default_spp_per_pass
+from jaxrt.render import SAMPLES_PER_PASS, default_spp_per_pass
 from jaxrt.sampler import SAMPLER_KINDS
 from jaxrt.scene import Scene, guard_geometry
 
@@ -76,8 +84,15 @@ PARAMS = {
     "environment.image": ("environment", "image"),
 }
 
-#: Samples (pixels × spp) per derivative pass of :func:`image_vjp` by default.
-VJP_SAMPLES_PER_PASS = 2**15
+#: Samples (pixels × spp) per derivative pass of :func:`image_vjp` by default: render's.
+#: A pass's memory no longer grows with its samples (``_vjp_pass`` folds them), and larger
+#: passes measured 5–12 % faster (image_vjp, 64² at 1 / 8 / 64 spp per pass: 1.31 / 1.37 /
+#: 1.44 Msamples/s; 256² at 1 / 8: 1.26 / 1.44; load 3.4).
+VJP_SAMPLES_PER_PASS = SAMPLES_PER_PASS
+
+#: Lanes (pixels × sample indices) per ``jax.grad`` of a derivative pass: a step of fewer
+#: lanes (a small image) takes several sample indices at once, up to this many lanes.
+GRAD_LANES = 2**14
 
 #: :func:`gradient`'s derivative passes use the seed XOR this (decorrelated from the image).
 DERIVATIVE_SEED_XOR = 0x9E3779B9
@@ -187,23 +202,70 @@ def estimate_image(scene: Scene, estimator: str | Estimator = "mis", spp: int = 
     return s1 / jnp.asarray(spp, s1.dtype)
 
 
-@jax.jit(static_argnames=("est", "sampler", "spp_total", "count", "tile_size", "batch_size"),
-         compiler_options=COMPILER_OPTIONS)
+@jax.jit(static_argnames=("est", "sampler", "spp_total", "count", "tile_size", "batch_size",
+                          "grad_lanes"), compiler_options=COMPILER_OPTIONS)
 def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total, count,
-              tile_size, batch_size):
-    """⟨cotangent, ∂(Σ_{pass} L / N)/∂params⟩ for one pass: its own tape, freed after."""
-    def image_part(p):
-        return _image_sums(with_params(scene, p), seed, start, est=est, sampler=sampler,
-                           spp_total=spp_total, count=count, tile_size=tile_size,
-                           batch_size=batch_size) / spp_total
+              tile_size, batch_size, grad_lanes=GRAD_LANES):
+    """``⟨c, ∂(Σ_{pass} L / N)/∂θ⟩`` for one pass, folded per sample index.
 
-    _, vjp = jax.vjp(image_part, params)
-    return vjp(cotangent.astype(scene.triangles.dtype))[0]
+    ``Σ_p ⟨c_p, ∂/∂θ Σ_k L(p, k)⟩ = Σ_k ∂/∂θ Σ_p ⟨c_p, L(p, k)⟩``: for each step of lanes
+    and each sample index k, ``jax.grad`` of the scalar ``Σ_lanes ⟨c_p, L(p, k; θ)⟩`` (the
+    same :func:`camera_sample` over the same lanes, seed, pixels and indices as
+    :func:`_image_sums`, non-finite samples counted as 0 as there) is added to a θ-shaped
+    carry. Each grad's tape lives within its loop iteration, so nothing is stacked across
+    samples. ``jax.vjp`` of the whole pass (the previous form) stacked every residual of
+    every sample (96 dynamic-update-slices, 315 kernels against the primal's 139) and cost
+    3.0–3.8× the primal pass; this one has 159 kernels and costs 1.3–1.6× (per-round
+    medians, benchmarks/README.md, "Gradients and batches"). Equal up to float32 rounding.
+    """
+    h, w = scene.height, scene.width
+    num_pixels = h * w
+    tile_size = LANES * math.ceil(int(tile_size) / LANES)
+    per_step, steps = step_layout(math.ceil(num_pixels / tile_size), int(batch_size))
+    # the lanes of a step as render_tiles lays them out: (tiles, pixels), flat for a BVH
+    lanes = ((per_step * tile_size,) if isinstance(scene.geometry, BVH)
+             else (per_step, tile_size))
+    pixels = jnp.arange(steps * per_step * tile_size, dtype=jnp.int32).reshape((steps,) + lanes)
+    dtype = scene.triangles.dtype
+    # lanes past the image's end take a zero cotangent (row num_pixels)
+    c = jnp.concatenate([jnp.asarray(cotangent, dtype).reshape(num_pixels, 3),
+                         jnp.zeros((1, 3), dtype)])
+    seed = jnp.asarray(seed, jnp.uint32)
+
+    # m sample indices per grad: a step of few lanes (small images) gets up to grad_lanes
+    m = max(d for d in range(1, count + 1)
+            if count % d == 0 and d * per_step * tile_size <= max(grad_lanes, per_step * tile_size))
+
+    def weighted(p, pix, first):  # Σ_lanes Σ_{j<m} ⟨c_p, L(p, first + j; θ)⟩ / N
+        sc = guard_geometry(with_params(scene, p))
+        sample = lambda pixel, i: camera_sample(sc, est, pixel, i, seed, sampler, spp_total)
+        for _ in range(pix.ndim):
+            sample = jax.vmap(sample, (0, None))
+        if m > 1:  # (a vmap over one index gives every value an axis of 1: slower)
+            sample = jax.vmap(sample, (None, 0))
+        inside = pix < num_pixels
+        value = sample(jnp.where(inside, pix, 0),
+                       first + jnp.arange(m, dtype=jnp.int32) if m > 1 else first)
+        ok = (jnp.isfinite(value[..., 0]) & jnp.isfinite(value[..., 1])
+              & jnp.isfinite(value[..., 2]))
+        cot = c[jnp.where(inside, pix, num_pixels)]
+        return jnp.sum(jnp.where(ok[..., None], value, 0) * cot) / spp_total
+
+    grad = jax.grad(weighted)
+
+    def some_samples(k, carry):
+        i, g = carry
+        return i, jax.tree.map(jnp.add, g, grad(params, pixels[i], start + k * m))
+
+    def one_step(i, g):
+        return lax.fori_loop(0, count // m, some_samples, (i, g))[1]
+
+    return lax.fori_loop(0, steps, one_step, jax.tree.map(jnp.zeros_like, params))
 
 
 def default_vjp_spp_per_pass(num_pixels: int, spp: int) -> int:
     """The largest divisor of ``spp`` not above ``VJP_SAMPLES_PER_PASS / num_pixels`` (≥ 1):
-    :func:`jaxrt.render.default_spp_per_pass`'s rule with a smaller pass (a pass's tape)."""
+    :func:`jaxrt.render.default_spp_per_pass`'s rule and pass size."""
     return default_spp_per_pass(num_pixels, spp, VJP_SAMPLES_PER_PASS)
 
 
@@ -226,11 +288,13 @@ def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, sp
 
     ``cotangent`` c: (H, W, 3), fixed (e.g. ``∂loss/∂I`` at an image of *other* samples:
     :func:`gradient`). Pass ``i`` takes samples ``[i·k, (i+1)·k)`` of every pixel
-    (``k = spp_per_pass``, default :func:`default_vjp_spp_per_pass`), runs its own
-    ``jax.vjp`` (one compiled program, reused by every pass) and its result is added in
-    float64 on the host; only one pass's tape is alive at a time, so peak memory grows with
-    pixels × k, not with spp. The sum equals ``jax.vjp`` of ``estimate_image`` up to float
-    rounding. ``params``: names from :func:`scene_params` to differentiate (default all).
+    (``k = spp_per_pass``, default :func:`default_vjp_spp_per_pass`) in one compiled
+    program, reused by every pass, and its result is added in float64 on the host. Within a
+    pass, a ``jax.grad`` per step of lanes and sample index (or a few indices, up to
+    ``GRAD_LANES`` lanes) is added to a running gradient, so only one such grad's tape is
+    alive at a time: peak memory grows with neither k nor spp. The sum equals ``jax.vjp`` of
+    ``estimate_image`` up to float rounding. ``params``: names from :func:`scene_params` to
+    differentiate (default all).
 
     Returns a dict name → gradient, each of its parameter's shape and dtype.
     """
@@ -251,7 +315,7 @@ def image_vjp(scene: Scene, cotangent, estimator: str | Estimator = "mis", *, sp
         count = min(k, spp - start)
         g = _vjp_pass(scene, theta, c, jnp.asarray(seed, jnp.uint32), jnp.int32(start), est=est,
                       sampler=sampler, spp_total=spp, count=count, tile_size=tile_size,
-                      batch_size=batch_size)
+                      batch_size=batch_size, grad_lanes=GRAD_LANES)
         g = {n: np.asarray(v, np.float64) for n, v in g.items()}
         total = g if total is None else {n: total[n] + g[n] for n in g}
     return {n: jnp.asarray(total[n], theta[n].dtype) for n in names}
