@@ -31,11 +31,13 @@ this over differentiating the sample (reparameterisation) because a sampled dire
 moves with θ crosses the edges of emitters and occluders, and autodiff misses those boundary
 terms (a biased derivative; ``tests/test_differentiable.py`` shows it).
 
-The identity needs p > 0 wherever ∂_θ f ≠ 0. Light sampling breaks it for a light that
-power-based selection never picks (zero power) and for an environment texel the map's
-sampler never draws (zero luminance): their derivative is 0 under light sampling although
-the image depends on them. MIS's BSDF samples still reach black area lights and texels;
-nothing reaches a black point, spot or directional light (benchmarks/README.md, "Gradients").
+The identity needs p > 0 wherever ∂_θ f ≠ 0. Light sampling would break it for a light of
+zero power and an environment texel of zero luminance, which a sampler proportional to power
+never draws; so power-based light selection keeps a floor of 1 % of the mean power per light
+(``jaxrt.lights.table.SELECTION_FLOOR``) and environment maps 1 % of the mean luminance per
+texel (``jaxrt.lights.environment.TEXEL_FLOOR``): every light and texel is drawn, and the
+derivative w.r.t. a black one is unbiased (``test_derivative_wrt_a_black_light``; without
+the floor it is exactly 0).
 
 What is not: geometry (vertices, camera, light positions and shapes, environment rotation).
 Visibility makes the image discontinuous in it, so derivatives w.r.t. it raise a

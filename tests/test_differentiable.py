@@ -501,3 +501,23 @@ def test_derivative_unbiased_where_the_sampler_depends_on_it(name):
         (c,) = sampler_dependent_checks(name, estimator, ref)
         assert abs(c.z[0]) < 4, (estimator, c.mean[0], ref, c.stderr[0])
         assert abs(ref) > 10 * c.stderr[0]  # the test can tell a wrong derivative
+
+
+@pytest.mark.parametrize("estimator", ["light_area", "mis", "mis_one_sample"])
+def test_derivative_wrt_a_black_light(estimator):
+    """d/dI of a point light of intensity 0 beside a lit one: ρ/π · cos θ / d² per unit
+    intensity, within 5σ. Light selection keeps a floor for every light
+    (``lights.table.SELECTION_FLOOR``); with the floor at 0 the black light is never
+    sampled and its derivative is exactly 0, with a standard error of 0 (the test fails),
+    so an optimiser could never light a light that starts black."""
+    dark_at, lit_at = np.array([0.6, -0.2, 1.1]), np.array([-0.3, 0.2, 1.5])
+    scene = shading_scene(mt.diffuse(RHO), [lt.point_light(lit_at, [2.0, 2.0, 2.0]),
+                                            lt.point_light(dark_at, [0.0, 0.0, 0.0])])
+    tangent = np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    d = derivative_at(scene, {"point.intensity": tangent}, estimator, P, N, WO,
+                      num_samples=1 << 17, seed=5)
+    r2 = float(dark_at @ dark_at)
+    ref = RHO / np.pi * (dark_at[2] / np.sqrt(r2)) / r2
+    z = (np.asarray(d.mean) - ref) / np.asarray(d.stderr)
+    assert np.all(np.abs(z) < 5), (d.mean, ref, d.stderr)
+    assert np.all(ref > 10 * np.asarray(d.stderr))

@@ -32,6 +32,9 @@ from jaxrt.lights.records import (
 from jaxrt.vecmath import spherical_direction, spherical_phi, spherical_theta
 from jaxrt.warp import square_to_uniform_sphere
 
+#: Share of the environment map's sampling spread uniformly in solid angle (see environment_map).
+TEXEL_FLOOR = 0.01
+
 
 class ConstantEnvironment(NamedTuple):
     """Radiance ``L`` (3,) arriving from every direction."""
@@ -65,8 +68,9 @@ def environment_map(image, rotation=None) -> EnvironmentMap:
     """Environment light from an (H, W, 3) lat-long RGB radiance ``image`` (host array).
 
     ``rotation``: optional (3, 3) orthonormal world-from-environment matrix (identity: the map's
-    +z is the world's +z). A map of zero luminance everywhere gets a sin θ-only distribution so it
-    can still be sampled (its ``li`` is then 0).
+    +z is the world's +z). Texels are drawn with probability ∝ (luminance + TEXEL_FLOOR · mean
+    luminance) · sin θ, so a black texel is still drawn (its derivative needs samples). A map
+    of zero luminance everywhere gets a sin θ-only distribution (its ``li`` is then 0).
     """
     img = np.asarray(image, np.float64)
     if img.ndim != 3 or img.shape[2] != 3 or img.shape[0] < 1 or img.shape[1] < 1:
@@ -87,6 +91,10 @@ def environment_map(image, rotation=None) -> EnvironmentMap:
     if not weights.sum() > 0:
         # A black map: keep a valid (solid-angle uniform) distribution; li is 0 anyway.
         weights = np.broadcast_to(sin_theta[:, None], (h, w))
+    else:
+        # every texel keeps a share (as lights do: table.SELECTION_FLOOR), so that the
+        # derivative w.r.t. a black texel has samples of it
+        weights = weights + TEXEL_FLOOR * np.mean(weights) * sin_theta[:, None]
     # Texel solid angle ∝ (cos θ_top − cos θ_bottom); used for the map's mean radiance.
     edges = np.cos(np.pi * np.arange(h + 1) / h)
     texel_omega = (edges[:-1] - edges[1:]) * (2 * np.pi / w)

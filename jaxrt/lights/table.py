@@ -44,6 +44,13 @@ _TABLE_TYPES = {
     environment.EnvironmentMap: "environment",
 }
 
+#: Power-based selection draws light i with pmf ∝ power_i + SELECTION_FLOOR · mean power. The
+#: floor keeps every light reachable: a derivative w.r.t. the power of a light that is never
+#: sampled would be 0 (its estimator's support would miss the light), so an optimiser could
+#: not light a light that starts black (d/dI of a black point light beside a lit one: 0, for
+#: 0.065). Lights of equal power keep the uniform pmf; others lose at most 1 % of the samples.
+SELECTION_FLOOR = 0.01
+
 
 @dataclasses.dataclass(frozen=True)
 class LightsStructure:
@@ -139,8 +146,9 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
         At most one environment.
       triangle_sampling: ``"area"`` (uniform on the triangle) or ``"solid_angle"`` (spherical
         triangle); static.
-      selection: ``"uniform"`` (pmf 1/N) or ``"power"`` (pmf ∝ luminance power); static. If every
-        light has zero power, power selection falls back to uniform.
+      selection: ``"uniform"`` (pmf 1/N) or ``"power"`` (pmf ∝ luminance power plus
+        :data:`SELECTION_FLOOR` times the mean power, so that no light has pmf 0); static. If
+        every light has zero power, power selection falls back to uniform.
       scene_radius: radius of the scene's bounding sphere, for the power of directional and
         environment lights.
     """
@@ -173,7 +181,8 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
     weights = np.ones(sum(counts))
     if selection == "power":
         power = light_powers(draft, scene_radius)
-        weights = power if power.sum() > 0 else weights
+        # every light keeps a share: derivatives w.r.t. a dark light's power need samples of it
+        weights = power + SELECTION_FLOOR * power.mean() if power.sum() > 0 else weights
     return dataclasses.replace(draft, selection=discrete_from_weights(weights))
 
 
