@@ -33,6 +33,7 @@ examples:
   jaxrt scenes                                          list the built-in scenes
   jaxrt render cornell_box --spp 256 -o box.exr --png box.png
   jaxrt render veach_mis --estimator light_area --width 512 --height 256
+  jaxrt render cornell_box --estimator path --spp 256 -o gi.exr   # global illumination
   jaxrt render my_scene.json --time-budget 30 --sampler sobol -o out.exr
   jaxrt render my_scene.json --target-error 0.01 -o out.exr   # until 1 % relative error
   jaxrt gallery -o warps.png                            every warp: samples against its pdf
@@ -436,8 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="jaxrt", formatter_class=_Formatter, epilog=EXAMPLES,
         description="Monte Carlo direct illumination in JAX: render a built-in scene or a "
-                    "JSON scene file with any estimator of the reflection equation, to an HDR "
-                    "EXR with a per-pixel standard-error layer and an sRGB PNG preview.")
+                    "JSON scene file with any estimator of the reflection equation (or "
+                    "global illumination with the path tracer), to an HDR EXR with a "
+                    "per-pixel standard-error layer and an sRGB PNG preview.")
     p.add_argument("--version", action="version", version=_version())
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
