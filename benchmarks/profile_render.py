@@ -48,18 +48,11 @@ import numpy as np
 
 import jaxrt.estimators as est_mod
 import jaxrt.passes as ps
+import jaxrt.terms as terms_mod
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.camera import generate_ray
-from jaxrt.estimators import (
-    ShadingPoint,
-    Stream,
-    _trace_emission,
-    _visible,
-    camera_sample,
-    make_estimator,
-    prepare_scene,
-)
+from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
 from jaxrt.render import render
 from jaxrt.scene import intersect, material_at, shading_normal
 from jaxrt.scenes import cornell_box
@@ -78,7 +71,7 @@ def truncated_sample(level: int):
         return camera_sample
 
     def sample(scene, est, pixel, index, seed, sampler="independent", spp=1):
-        s = Stream(sampler, seed, pixel, index, spp)
+        s = terms_mod.Stream(sampler, seed, pixel, index, spp)
         dtype = scene.triangles.dtype
         if level == 0:
             return jnp.broadcast_to(pixel.astype(dtype) * 1e-9, (3,))
@@ -93,7 +86,7 @@ def truncated_sample(level: int):
             return acc
         hit = intersect(scene, o, d, jnp.asarray(jnp.inf, dtype))
         n = shading_normal(hit.ng, -d)
-        x = ShadingPoint(hit, n, to_local(-d, n), material_at(scene, hit))
+        x = terms_mod.ShadingPoint(hit, n, to_local(-d, n), material_at(scene, hit))
         acc = acc + hit.p + n + x.material.kd
         if level == 3:
             return acc
@@ -101,7 +94,7 @@ def truncated_sample(level: int):
         acc = acc + ls.wi * ls.pdf + ls.li + ls.dist
         if level == 4:
             return acc
-        acc = acc + _visible(scene, x, ls)
+        acc = acc + terms_mod._visible(scene, x, ls)
         if level == 5:
             return acc
         wi_local = to_local(ls.wi, n)
@@ -114,7 +107,7 @@ def truncated_sample(level: int):
         acc = acc + wi * bs.pdf + bs.weight
         if level == 7:
             return acc
-        le, h = _trace_emission(scene, x, wi)
+        le, h = terms_mod._trace_emission(scene, x, wi)
         acc = acc + le + h.p
         if level == 8:
             return acc
@@ -131,7 +124,9 @@ def compile_level(scene, est, level: int):
     try:
         static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
                       batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
-        args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0))
+        per_step, steps = ps.step_layout(SIZE * SIZE // 256, BATCH_SIZE)
+        sums = ps.zero_sums((steps * per_step * 256,), scene.triangles.dtype)
+        args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0), sums)
         t0 = time.perf_counter()
         exe = ps.render_tiles.lower(*args, **static).compile()
         return exe, args, time.perf_counter() - t0
@@ -175,7 +170,7 @@ def kernel_trace(exe, args, top: int = 15) -> list[tuple[str, int, float]]:
 SCOPES = (("shadow_ray", "shadow ray: spawn_ray_to + any hit"),
           ("bsdf_ray/closest_hit", "BSDF ray: closest hit (+ hit point)"),
           ("emitted", "emitted (camera hit + BSDF ray)"),
-          ("bsdf_ray", "BSDF ray: spawn_ray"),
+          ("bsdf_ray", "BSDF ray: trace_from (closest hit, emitted, pdf_li)"),
           ("pdf_li", "pdf_li (BSDF ray)"),
           ("closest_hit", "camera ray: closest hit (+ hit point)"),
           ("light_sample", "light sample (sample_li)"),
@@ -194,12 +189,14 @@ def _scoped(fn, name):
 
 def _patch_scopes() -> list:
     """Wrap the stage functions the estimator calls in named scopes; returns the undo list."""
-    targets = [(est_mod, "generate_ray", "camera"), (est_mod, "intersect", "closest_hit"),
-               (est_mod, "_visible", "shadow_ray"), (est_mod, "_trace_emission", "bsdf_ray"),
-               (est_mod, "emitted", "emitted"), (est_mod, "mis_weight", "mis_weight"),
+    targets = [(terms_mod, "generate_ray", "camera"), (est_mod, "intersect", "closest_hit"),
+               (terms_mod, "intersect", "closest_hit"),
+               (terms_mod, "_visible", "shadow_ray"), (terms_mod, "trace_from", "bsdf_ray"),
+               (est_mod, "emitted", "emitted"), (terms_mod, "emitted", "emitted"),
+               (est_mod, "mis_weight", "mis_weight"),
                (lt, "sample_li", "light_sample"), (lt, "pdf_li", "pdf_li"),
                (mt, "bsdf_eval", "bsdf"), (mt, "bsdf_pdf", "bsdf"), (mt, "bsdf_sample", "bsdf"),
-               (Stream, "u1", "sampler"), (Stream, "u2", "sampler")]
+               (terms_mod.Stream, "u1", "sampler"), (terms_mod.Stream, "u2", "sampler")]
     undo = []
     for obj, attr, name in targets:
         undo.append((obj, attr, getattr(obj, attr)))

@@ -8,7 +8,7 @@ radiance arriving at x,
 and its Neumann series sums paths x₀ (camera) → x₁ → … → x_D of D segments. The estimator
 walks one path per camera sample. At every surface vertex x_k it
 
-1. samples a light (``jaxrt.estimators._light_term``: one light sample, light chosen by the
+1. samples a light (``jaxrt.terms._light_term``: one light sample, light chosen by the
    scene's selection pmf) and adds ``β · w_l · f L_e |cos θi| / p_l`` when the shadow ray is
    free (next-event estimation, NEE);
 2. samples the BSDF (``_bsdf_term``), multiplies the throughput ``β`` by ``f |cos θi| / p_b``
@@ -84,8 +84,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from jaxrt.estimators import (
-    Estimator,
+from jaxrt.estimators import Estimator
+from jaxrt.scene import TRIANGLE, Scene
+from jaxrt.terms import (
     ShadingPoint,
     Stream,
     _light_term,
@@ -95,7 +96,6 @@ from jaxrt.estimators import (
     shading_point,
     trace_from,
 )
-from jaxrt.scene import TRIANGLE, Scene
 
 #: Random dimensions per path vertex (see the module notes).
 DIMS_PER_VERTEX = 6
