@@ -565,13 +565,13 @@ def main(argv=None) -> int:
         write_section("mitsuba", mitsuba_markdown(res))
         return 0
 
-    from jaxrt.estimators import ESTIMATORS
+    from jaxrt.estimators import DIRECT_ESTIMATORS
     from jaxrt.scenes import BUILTIN
 
     machine = machine_description()
     print(f"machine: {machine}")
     scenes = args.scenes or (QUICK_SCENES if args.quick else tuple(BUILTIN))
-    estimators = args.estimators or (QUICK_ESTIMATORS if args.quick else ESTIMATORS)
+    estimators = args.estimators or (QUICK_ESTIMATORS if args.quick else DIRECT_ESTIMATORS)
     ref_spp = args.ref_spp or (1024 if args.quick else 4096)
     rows = study(scenes, estimators, args.size, args.size, args.levels, ref_spp, args.sampler)
     if args.no_write:

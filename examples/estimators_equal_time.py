@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxrt import scenes  # noqa: E402
-from jaxrt.estimators import ESTIMATORS  # noqa: E402
+from jaxrt.estimators import DIRECT_ESTIMATORS  # noqa: E402
 from jaxrt.io import srgb_oetf  # noqa: E402
 from jaxrt.render import render  # noqa: E402
 
@@ -50,7 +50,8 @@ def main(argv=None) -> dict:
     p.add_argument("--scene", default="cornell_box", choices=sorted(scenes.BUILTIN))
     p.add_argument("--reference-factor", type=float, default=16.0,
                    help="the MIS reference renders this many times longer than each estimator")
-    p.add_argument("--estimators", nargs="+", default=list(ESTIMATORS), choices=ESTIMATORS)
+    p.add_argument("--estimators", nargs="+", default=list(DIRECT_ESTIMATORS),
+                   choices=DIRECT_ESTIMATORS)  # the reference is direct light (MIS)
     p.add_argument("--spp-per-pass", type=int, default=4)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("-o", "--output", default="equal_time.png")

@@ -92,8 +92,12 @@ from jaxrt.terms import (  # re-exported: the terms the estimators are built of
 #: AVX-512; on narrower CPUs XLA uses what exists) — benchmarks/README.md, "render hot path".
 COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
 
-ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
-              "light_solid_angle", "mis", "mis_one_sample", "path")
+#: The estimators of the reflection equation (direct illumination): on one scene they all
+#: estimate the same image.
+DIRECT_ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
+                     "light_solid_angle", "mis", "mis_one_sample")
+#: Every estimator: the direct ones and the path tracer (global illumination, jaxrt.path).
+ESTIMATORS = DIRECT_ESTIMATORS + ("path",)
 HEURISTICS = ("balance", "power")
 
 
