@@ -11,9 +11,9 @@ walks one path per camera sample. At every surface vertex x_k it
 1. samples a light (``jaxrt.terms._light_term``: one light sample, light chosen by the
    scene's selection pmf) and adds ``β · w_l · f L_e |cos θi| / p_l`` when the shadow ray is
    free (next-event estimation, NEE);
-2. samples the BSDF (``_bsdf_term``), multiplies the throughput ``β`` by ``f |cos θi| / p_b``
-   and traces the ray: the emitter it finds adds ``β · w_b · L_e``; the surface it hits is
-   the next vertex.
+2. samples the BSDF (``jaxrt.terms.bsdf_direction``), multiplies the throughput ``β`` by
+   ``f |cos θi| / p_b`` and traces the ray (``trace_from``): the emitter it finds adds
+   ``β · w_b · L_e``; the surface it hits is the next vertex.
 
 ``w_l``, ``w_b`` are the MIS weights of the two techniques (``heuristic``: balance or power,
 one sample each), exactly as in the ``mis`` estimator: the direct light at each vertex is the
@@ -37,12 +37,12 @@ divided by q: unbiased, since E[1{u < q}/q] = 1, and after it ``max β = 1``, so
 grows and every path's value stays bounded (by L_e times its length). Mitsuba 3 caps q at
 0.95 instead: then β grows by ρ/0.95 per bounce while paths survive with 0.95, and for a
 throughput factor ρ > √0.95 ≈ 0.975 per bounce the estimator's variance is infinite (a
-ρ = 0.999 furnace came out at 15–40 % of its value, 6 of 8 seeds beyond 5σ:
+ρ = 0.999 furnace came out at 14–38 % of its value, 6 of 8 seeds beyond 5σ:
 tests/test_path.py). The price: a path keeps going as long as its throughput does (about
 1/(1 − ρ) bounces in a furnace of albedo ρ). q carries no derivative (it is a sampling
 decision). "Unbounded" paths stop at :data:`MAX_SEGMENTS` segments, so that a lossless
-closed scene (a perfect mirror box) cannot run forever: the only bias, ρ^MAX_SEGMENTS of
-the light, is there alone.
+closed scene (a perfect mirror box) cannot run forever; only such a scene loses light by it
+(a path of throughput factor ρ reaches 2^16 segments with probability ρ^65536).
 
 Random dimensions: vertex k (from 1) uses ``b = 2 + 6 (k − 1)``: the pair (b, b+1) for the
 point on the light, b+2 to choose the light, b+3 for the roulette, the pair (b+4, b+5) for
