@@ -272,12 +272,14 @@ def default_vjp_spp_per_pass(num_pixels: int, spp: int) -> int:
 
 
 def _reverse_mode(est: Estimator) -> Estimator:
-    """``est`` if reverse mode can run through it; the path tracer's vertex loop is a
-    ``lax.while_loop``, which JAX does not reverse-differentiate: refused before any work."""
-    if est.name == "path":
-        raise ValueError("reverse-mode derivatives (gradient, image_vjp, jax.grad) do not go "
-                         "through the path tracer's vertex loop (a lax.while_loop); use "
-                         "forward mode (jax.jvp, derivative_at) or a direct estimator")
+    """``est`` if reverse mode can run through it. An unbounded path's vertex loop is a
+    ``lax.while_loop``, which JAX does not reverse-differentiate: refused before any work
+    (bounded paths walk a ``fori_loop``: :func:`jaxrt.path.trace_path`)."""
+    if est.name == "path" and est.max_depth < 0:
+        raise ValueError("reverse-mode derivatives (gradient, image_vjp) of the path tracer "
+                         "need a bounded max_depth: an unbounded path's vertex loop is a "
+                         "lax.while_loop, which JAX does not reverse-differentiate; use "
+                         "forward mode (jax.jvp, derivative_at) or set max_depth")
     return est
 
 

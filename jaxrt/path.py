@@ -71,8 +71,10 @@ Derivatives: as for the direct estimators (sampling detached: every sampled dire
 MIS weight and roulette probability is held fixed, ``β`` carries the derivative of
 ``f |cos θi| / p`` at the fixed direction): forward mode (``jax.jvp``,
 :func:`jaxrt.differentiable.derivative_at`) works at any depth. Reverse mode
-(``jax.grad``/``jax.vjp``, :func:`jaxrt.differentiable.gradient`) does not go through a
-``while_loop`` in JAX and is refused before any work.
+(:func:`jaxrt.differentiable.image_vjp`, :func:`jaxrt.differentiable.gradient`) works for
+paths of bounded depth, whose per-sample walk is a ``fori_loop``; JAX does not
+reverse-differentiate a ``while_loop``, so unbounded paths, and ``jax.grad`` of
+``estimate_image`` (whose pass regenerates paths in a ``while_loop``), are refused or fail.
 """
 
 from __future__ import annotations
@@ -178,12 +180,19 @@ def path(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
 
 def trace_path(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> PathState:
     """The walk of :func:`path`, returning its final state (``vertex``: the index of the
-    vertex where the path ended, i.e. the steps it took; for measurements)."""
+    vertex where the path ended, i.e. the steps it took; for measurements).
+
+    Unbounded paths run a ``while_loop`` until the path ends; paths of at most ``max_depth``
+    segments run a ``fori_loop`` of ``max_depth − 1`` steps (ended paths step on unchanged:
+    every term is masked by ``active``), which JAX can reverse-differentiate: this is what
+    :func:`jaxrt.differentiable.image_vjp` runs for ``path``."""
     dtype = x.hit.p.dtype
     start = PathState(x, jnp.ones(3, dtype), jnp.zeros(3, dtype), jnp.int32(1),
                       _can_scatter(est, x.hit, jnp.int32(1)))
-    return lax.while_loop(lambda st: st.active,
-                          lambda st: arrive(scene, est, *scatter(scene, est, st, s)), start)
+    step = lambda st: arrive(scene, est, *scatter(scene, est, st, s))  # noqa: E731
+    if est.max_depth > 0:
+        return lax.fori_loop(0, est.max_depth - 1, lambda _, st: step(st), start)
+    return lax.while_loop(lambda st: st.active, step, start)
 
 
 #: Lanes of a pass are compacted when the running ones fit in a quarter of them, at most
