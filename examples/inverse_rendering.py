@@ -2,6 +2,7 @@
 
     python examples/inverse_rendering.py                    # 32², 600 steps, ~1 min on 2 cores
     python examples/inverse_rendering.py --steps 1500 -o fit.png
+    python examples/inverse_rendering.py --max-depth 3          # path tracing: the ceiling too
 
 A target image is rendered with the box's true parameters; the fit starts from grey walls
 (albedo 0.5) and a white light of half the true power, and descends the L2 loss
@@ -16,7 +17,11 @@ What the image can tell: under direct illumination a surface is lit only by the 
 pixel's value is albedo × radiance × geometry; the light itself is seen by the camera, which
 fixes the radiance and with it the albedos. A material whose surface receives no direct light
 (the ceiling, in the plane of the light) does not change the image: its albedo has no
-gradient and is reported as not identifiable, not fitted.
+gradient and is reported as not identifiable, not fitted. With ``--max-depth D`` the image is
+path traced (light reflected up to D − 1 times; reverse-mode derivatives of the path tracer
+need a bounded depth) and the ceiling, lit by the walls, enters the fit; its gradient is weak
+and noisy, so it converges slowly (600 steps at 32²: 28.6 % off, the rest within 5 % on
+average and the radiance within 0.64 %; 203 s on 2 shared cores).
 
 Returns (from :func:`main`) a dict with the per-step ``loss`` and parameters, the fitted and
 true values and their relative errors, and writes a figure (loss, parameters, images).
@@ -40,12 +45,17 @@ def _fit(args) -> dict:
     from jaxrt.scenes import cornell_box
 
     box = cornell_box(args.size, args.size)
+    # direct light (mis), or with --max-depth D the path tracer: light reflected up to D − 1
+    # times, so that surfaces only indirect light reaches (the ceiling) enter the fit
+    est = (("mis", {}) if args.max_depth is None
+           else ("path", {"max_depth": args.max_depth}))
     true = {k: np.asarray(v, np.float64) for k, v in jaxrt.scene_params(box).items()
             if k in (KD, LE)}
-    target = jaxrt.estimate_image(box, spp=args.target_spp, seed=10_000)
+    target = jaxrt.estimate_image(box, est[0], spp=args.target_spp, seed=10_000, **est[1])
 
     # which albedos the image depends on: the gradient of the image's sum per material
-    sens = jaxrt.image_vjp(box, jnp.ones_like(target), spp=4, seed=1, params=(KD,))[KD]
+    sens = jaxrt.image_vjp(box, jnp.ones_like(target), est[0], spp=4, seed=1, params=(KD,),
+                           **est[1])[KD]
     visible = np.asarray(jnp.abs(sens).sum(axis=1)) > 0
 
     start = {KD: np.where(visible[:, None], 0.5, true[KD]),
@@ -69,8 +79,8 @@ def _fit(args) -> dict:
     t0 = time.perf_counter()
     for step in range(args.steps):
         values = {k: jnp.exp(v) for k, v in logp.items()}
-        g = jaxrt.gradient(loss, jaxrt.with_params(box, values), spp=args.spp,
-                           primal_spp=args.primal_spp, seed=step, params=(KD, LE))
+        g = jaxrt.gradient(loss, jaxrt.with_params(box, values), est[0], spp=args.spp,
+                           primal_spp=args.primal_spp, seed=step, params=(KD, LE), **est[1])
         # chain rule through the exp; albedos the image does not see are not moved
         grads = {KD: g.grads[KD] * values[KD] * mask, LE: g.grads[LE] * values[LE]}
         updates, state = opt.update(grads, state)
@@ -89,10 +99,10 @@ def _fit(args) -> dict:
                LE: np.abs(start[LE] - true[LE]) / true[LE]}
     final = jaxrt.estimate_image(jaxrt.with_params(box, {k: jnp.asarray(v, jnp.float32)
                                                           for k, v in fitted.items()}),
-                                 spp=args.target_spp, seed=20_000)
+                                 est[0], spp=args.target_spp, seed=20_000, **est[1])
     first = jaxrt.estimate_image(jaxrt.with_params(box, {k: jnp.asarray(v, jnp.float32)
                                                           for k, v in start.items()}),
-                                 spp=args.target_spp, seed=20_000)
+                                 est[0], spp=args.target_spp, seed=20_000, **est[1])
     return dict(history=history, true=true, start=start, fitted=fitted, visible=visible,
                 rel_error=rel, initial_rel_error=initial, seconds=time.perf_counter() - t0,
                 images={"start": np.asarray(first), "fitted": np.asarray(final),
@@ -143,6 +153,9 @@ def main(argv=None) -> dict:
     p.add_argument("--lr", type=float, default=0.1, help="Adam step size (log-parameters)")
     p.add_argument("--lr-decay", type=float, default=0.01,
                    help="step size at the end ÷ at the start (exponential decay)")
+    p.add_argument("--max-depth", type=int, default=None,
+                   help="fit with the path tracer, paths of at most this many segments "
+                        "(default: direct light, mis)")
     p.add_argument("-o", "--output", default="inverse_rendering.png", help="figure (PNG)")
     p.add_argument("-q", "--quiet", dest="verbose", action="store_false")
     args = p.parse_args(argv)
