@@ -26,6 +26,7 @@ round (median and range), the machine's load before and after.
 from __future__ import annotations
 
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -177,21 +178,31 @@ def batch(size: int = 32, spp: int = 4, n: int = 8) -> None:
     t0 = time.perf_counter()
     f(kds).block_until_ready()
     t_compile = time.perf_counter() - t0
-    best = np.inf
-    for _ in range(3):
-        t0 = time.perf_counter()
-        f(kds).block_until_ready()
-        best = min(best, time.perf_counter() - t0)
-    t0 = time.perf_counter()
-    render_only = 0.0
-    for k in kds:
-        r = jaxrt.render(with_params(scene, {"materials.kd": k}), spp=spp, progress=False)
-        render_only += r.timings["render"]
-    loop = time.perf_counter() - t0
-    print(f"{n} albedo sets, {size}², {spp} spp: vmap {best / n * 1e3:.1f} ms per image "
-          f"(compile {t_compile:.1f} s, once); loop of render {loop / n * 1e3:.0f} ms per image "
-          f"(each call compiles its pass; {render_only / n * 1e3:.1f} ms of it rendering): "
-          f"{loop / best:.0f}× / {render_only / best:.2f}×")
+    # interleaved rounds (batch, loop, loop, batch, …), wall and process CPU seconds each
+    rounds = {"vmap": [], "loop": [], "loop_render": []}
+    for r in range(rounds_ := 6):
+        for name in ("vmap", "loop") if r % 2 == 0 else ("loop", "vmap"):
+            w0, c0 = time.perf_counter(), time.process_time()
+            if name == "vmap":
+                f(kds).block_until_ready()
+            else:
+                render_only = 0.0
+                for k in kds:
+                    res = jaxrt.render(with_params(scene, {"materials.kd": k}), spp=spp,
+                                       progress=False)
+                    render_only += res.timings["render"]
+                rounds["loop_render"].append(render_only)
+            rounds[name].append((time.perf_counter() - w0, time.process_time() - c0))
+    med = lambda xs, i: float(np.median([x[i] for x in xs]))  # noqa: E731
+    vw, vc, lw, lc = (med(rounds["vmap"], 0), med(rounds["vmap"], 1), med(rounds["loop"], 0),
+                      med(rounds["loop"], 1))
+    lr = float(np.median(rounds["loop_render"]))
+    print(f"{n} albedo sets, {size}², {spp} spp, {rounds_} interleaved rounds (medians), load "
+          f"{os.getloadavg()[0]:.1f}: vmap {vw / n * 1e3:.1f} ms per image ({vc / n * 1e3:.1f} "
+          f"CPU-ms; compile {t_compile:.1f} s, once); loop of render {lw / n * 1e3:.0f} ms per "
+          f"image ({lc / n * 1e3:.0f} CPU-ms; {lr / n * 1e3:.1f} ms of it rendering): "
+          f"{lw / vw:.0f}× per wall s, {lc / vc:.0f}× per CPU-s, {lr / vw:.1f}× against the "
+          f"loop's rendering alone")
 
 
 if __name__ == "__main__":
