@@ -64,6 +64,7 @@ from jax import Array
 
 from jaxrt import warp
 from jaxrt.derivatives import nondifferentiable
+from jaxrt.path import path, path_dims
 from jaxrt.scene import (
     TRIANGLE,
     Scene,
@@ -137,8 +138,6 @@ class Estimator(NamedTuple):
         if self.name == "mis_one_sample":
             return 10
         if self.name == "path":
-            from jaxrt.path import path_dims  # the path tracer builds on this module
-
             return path_dims(self.max_depth)
         return 2 + 4
 
@@ -299,12 +298,8 @@ def shade(scene: Scene, est: Estimator, hit: SurfaceHit, wo: Array, s: Stream) -
     """Radiance reflected at ``hit`` towards ``wo`` (0 off triangle surfaces): direct
     illumination, or for ``path`` all the light of paths up to ``max_depth`` segments."""
     x = shading_point(scene, hit, wo)
-    if est.name == "path":
-        from jaxrt.path import path  # the path tracer builds on this module's terms
-
-        value = path(scene, est, x, s)
-    else:
-        value = _TECHNIQUES[est.name](scene, est, x, s)
+    technique = path if est.name == "path" else _TECHNIQUES[est.name]
+    value = technique(scene, est, x, s)
     return jnp.where(hit.kind == TRIANGLE, value, 0)
 
 

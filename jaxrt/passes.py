@@ -105,17 +105,16 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
                                                 spp_total)
     for _ in range(pixels.ndim):
         sample = jax.vmap(sample, (0, None))
-    squared, fold = _squared, _fold
 
     def body(k, carry):
         acc, previous = carry
-        return fold(acc, previous), squared(sample(pixels, start + k))
+        return _fold(acc, previous), _squared(sample(pixels, start + k))
 
     zero = jnp.zeros(pixels.shape + (3,), sums.s1.dtype)
     # the first fold adds an exact zero (TwoSum of 0 leaves hi and lo as they are): the sums
     # are those of the unpipelined loop, bit for bit
     acc, last = lax.fori_loop(0, count, body, (sums, (zero, zero)))
-    return fold(acc, last)
+    return _fold(acc, last)
 
 
 def _squared(value: Array) -> tuple[Array, Array]:

@@ -80,13 +80,12 @@ reverse-differentiate a ``while_loop``, so unbounded paths, and ``jax.grad`` of
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from jaxrt.estimators import Estimator
 from jaxrt.scene import TRIANGLE, Scene
 from jaxrt.terms import (
     ShadingPoint,
@@ -98,6 +97,9 @@ from jaxrt.terms import (
     shading_point,
     trace_from,
 )
+
+if TYPE_CHECKING:  # annotations only: jaxrt.estimators imports this module
+    from jaxrt.estimators import Estimator
 
 #: Random dimensions per path vertex (see the module notes).
 DIMS_PER_VERTEX = 6
