@@ -390,9 +390,76 @@ def block_z(image, stderr, ref, ref_var_scale: float, block: int = 16) -> np.nda
     return (dm[ok] / np.sqrt(vm[ok])).ravel()
 
 
+def level_renderer(scene, estimator: str, levels, sampler: str = "independent",
+                   seed: int = 0, tile_size: int = 256, batch_size: int = 64, **params):
+    """One render of ``n`` spp from scratch for every ``n`` in ``levels``, compiled up front.
+
+    Returns ``(render, compile_seconds)``; ``render(n)`` runs ONE pass of ``n`` samples per
+    pixel (jaxrt's :class:`~jaxrt.passes.RenderPass`, as ``render(scene, spp=n)`` runs it when
+    ``n`` fits one pass) and returns ``(image, stderr)``, (H, W, 3) float64. The image equals
+    :func:`progressive`'s level ``n`` bit for bit (a pass's split never changes the sums).
+    This is how a Mitsuba render of ``n`` spp is timed, so the two error-vs-time tables compare
+    renders with renders (a progressive run pays each level's pass on top of the earlier ones).
+    """
+    import jax
+
+    from jaxrt.estimators import make_estimator, prepare_scene
+    from jaxrt.passes import LANES, RenderPass, Sums
+    from jaxrt.render import _mean_and_error
+
+    est = make_estimator(estimator, **params)
+    scene = prepare_scene(scene, est)
+    tile_size = LANES * math.ceil(tile_size / LANES)
+    run = RenderPass(scene, seed, jax.devices()[:1], tile_size, est=est, sampler=sampler,
+                     spp_total=1 if sampler != "stratified" else max(levels),
+                     batch_size=batch_size)
+    t_compile = sum(run.compile(int(n)) for n in sorted(set(levels)))
+    h, w = scene.height, scene.width
+
+    def render(n: int):
+        s1, s2, _ = Sums(*(a[: h * w] for a in run.host(run(run.zeros(), 0, int(n))))).totals()
+        mean, err = _mean_and_error(s1, s2, int(n))
+        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+
+    return render, t_compile
+
+
+def paired_level_times(renderers: dict, rounds: int = 3) -> tuple[dict, dict]:
+    """Time every renderer at every spp in interleaved rounds, in this process.
+
+    ``renderers``: name -> ``(spps, fn)`` with ``fn(i, spp)`` rendering the ``i``-th spp of
+    ``spps`` and returning its image (after any warm-up the renderer needs). Each round runs
+    every (renderer, spp) once, in an order reversed every other round, so a change in the
+    machine's load falls on all of them alike. Returns ``(images, times)``: the image of the
+    first round, and per (name, spp) the median over rounds of ``seconds`` (wall, until the
+    image is on the host) and ``cpu_seconds`` (this process's CPU time over the same span).
+    """
+    jobs = [(name, i, spp) for name, (spps, _) in renderers.items()
+            for i, spp in enumerate(spps)]
+    for spps, fn in renderers.values():
+        fn(0, spps[0])  # warm-up: Dr.Jit's kernels, first calls
+    images, samples = {n: {} for n in renderers}, {n: {} for n in renderers}
+    for r in range(rounds):
+        for name, i, spp in (jobs if r % 2 == 0 else jobs[::-1]):
+            c0, t0 = time.process_time(), time.perf_counter()
+            image = renderers[name][1](i, spp)
+            dt, dc = time.perf_counter() - t0, time.process_time() - c0
+            images[name].setdefault(spp, image)
+            samples[name].setdefault(spp, []).append((dt, dc))
+    times = {n: {spp: {"seconds": float(np.median([x[0] for x in v])),
+                       "cpu_seconds": float(np.median([x[1] for x in v]))}
+                 for spp, v in per.items()} for n, per in samples.items()}
+    return images, times
+
+
 def mitsuba_comparison(levels=(1, 2, 4, 8, 16), mitsuba_spps=(1, 2, 4, 8, 16, 32, 64),
-                       ref_spp: int = 128, size: int = 256, log=print) -> dict:
+                       ref_spp: int = 128, size: int = 256, rounds: int = 5,
+                       log=print) -> dict:
     """jaxrt vs Mitsuba 3 on the 256² Cornell box, MIS with 1 light + 1 BSDF sample, one run.
+
+    Error vs time: every row is one render of that many spp from scratch, timed in
+    ``rounds`` interleaved rounds with all the other rows (:func:`paired_level_times`; wall
+    and CPU seconds, medians).
 
     Returns a JSON-able dict (also saved to ``benchmarks/.cache/vs_mitsuba.json``):
     ``mitsuba`` (samples/s best/median, error-vs-time rows against its 4096-spp reference),
@@ -406,51 +473,64 @@ def mitsuba_comparison(levels=(1, 2, 4, 8, 16), mitsuba_spps=(1, 2, 4, 8, 16, 32
 
     from jaxrt.scenes import cornell_box
 
-    res = {"machine": machine_description(), "size": size, "ref_spp": ref_spp}
+    res = {"machine": machine_description(), "size": size, "ref_spp": ref_spp,
+           "rounds": rounds}
     log("mitsuba: samples/s")
     res["mitsuba"] = {k: v for k, v in mc.mitsuba_samples_per_second(
         spp=16, repeats=5, width=size, height=size).items()}
     ref_mi = mc.mitsuba_reference(4096, size, size)
-    log("mitsuba: error vs time")
-    res["mitsuba"]["rows"] = mc.mitsuba_error_vs_time(mitsuba_spps, reference=ref_mi,
-                                                      width=size, height=size)
     scene = cornell_box(size, size)
-    runs = {}
+    renderers = {"mitsuba": (mitsuba_spps, lambda i, spp: mc.render_mitsuba(
+        spp, 101 + i, size, size, "box", 1.0)[0])}
+    compile_s = {}
     for sampler in ("independent", "sobol"):
-        log(f"jaxrt: {sampler}")  # before the reference, which reuses the compiled program
-        # one pass per level, as a user's render() or a Mitsuba render call would run it (in
-        # passes of 1 spp, jaxrt's fixed cost per pass dominated: 1.1-1.25 vs 2.9 Msamples
-        # per CPU-second at 256², and time to RMSE 0.03 read 1.03x Mitsuba's, 2026-12-02)
-        runs[sampler] = progressive(scene, "mis", levels, sampler=sampler, seed=7,
-                                    pass_spp=None)
+        log(f"jaxrt: compile {sampler}")
+        fn, compile_s[sampler] = level_renderer(scene, "mis", levels, sampler=sampler, seed=7)
+        renderers[sampler] = (levels, lambda i, spp, fn=fn: fn(spp)[0])
+    log(f"error vs time: {rounds} interleaved rounds")
+    images, times = paired_level_times(renderers, rounds)
+    res["mitsuba"]["rows"] = [
+        {"spp": spp, **times["mitsuba"][spp], "rmse": mc.rmse(images["mitsuba"][spp], ref_mi)}
+        for spp in mitsuba_spps]
+    mean_ref = float(np.mean(ref_mi))
+    for row in res["mitsuba"]["rows"]:
+        row.update(rel_rmse=row["rmse"] / mean_ref,
+                   efficiency=1.0 / (row["rmse"] ** 2 * row["seconds"]),
+                   samples_per_second=size * size * row["spp"] / row["seconds"])
     log("jaxrt: reference")
     ref_j, ref_j_err = reference("cornell_box", size, size, ref_spp)
     ref_var = float(np.mean(ref_j_err ** 2))
     res["jaxrt"] = {}
-    for sampler, (rows, t_compile) in runs.items():
+    for sampler in ("independent", "sobol"):
         out = []
-        for r in rows:
-            d2 = float(np.mean((r["image"] - ref_j) ** 2))
+        for spp in levels:
+            image, t = images[sampler][spp], times[sampler][spp]
+            d2 = float(np.mean((image - ref_j) ** 2))
             mse = max(d2 - ref_var, 1e-30)
-            out.append({"spp": r["spp"], "seconds": r["seconds"], "rmse_raw": d2 ** 0.5,
+            out.append({"spp": spp, **t, "rmse_raw": d2 ** 0.5,
                         "rmse": mse ** 0.5, "rmse_vs_mitsuba_ref":
-                        float(np.sqrt(np.mean((r["image"] - ref_mi) ** 2))),
-                        "samples_per_s": r["samples_per_s"],
-                        "efficiency": 1.0 / (mse * max(r["seconds"], 1e-9))})
-        res["jaxrt"][sampler] = {"compile_s": t_compile, "rows": out,
+                        float(np.sqrt(np.mean((image - ref_mi) ** 2))),
+                        "samples_per_s": spp * size * size / t["seconds"],
+                        "efficiency": 1.0 / (mse * max(t["seconds"], 1e-9))})
+        res["jaxrt"][sampler] = {"compile_s": compile_s[sampler], "rows": out,
                                  "samples_per_s": out[-1]["samples_per_s"]}
     mi_sps = res["mitsuba"]["samples_per_second"]
     mi_med = res["mitsuba"]["median_samples_per_second"]
     ratios = {"samples_per_s_vs_best": res["jaxrt"]["independent"]["samples_per_s"] / mi_sps,
               "samples_per_s_vs_median":
                   res["jaxrt"]["independent"]["samples_per_s"] / mi_med, "time_to_rmse": {}}
+    on_cpu = lambda rows: [dict(r, seconds=r["cpu_seconds"]) for r in rows]  # noqa: E731
     for target in (0.1, 0.05, 0.03):
         t_mi = mc.time_to_rmse(res["mitsuba"]["rows"], target)
-        entry = {"mitsuba_s": t_mi}
+        c_mi = mc.time_to_rmse(on_cpu(res["mitsuba"]["rows"]), target)
+        entry = {"mitsuba_s": t_mi, "mitsuba_cpu_s": c_mi}
         for sampler in res["jaxrt"]:
             t_j = mc.time_to_rmse(res["jaxrt"][sampler]["rows"], target)
+            c_j = mc.time_to_rmse(on_cpu(res["jaxrt"][sampler]["rows"]), target)
             entry[f"jaxrt_{sampler}_s"] = t_j
             entry[f"ratio_{sampler}"] = t_j / t_mi
+            entry[f"jaxrt_{sampler}_cpu_s"] = c_j
+            entry[f"ratio_{sampler}_cpu"] = c_j / c_mi
         ratios["time_to_rmse"][str(target)] = entry
     res["ratios"] = ratios
     z = block_z(ref_j, ref_j_err, ref_mi, ref_spp / 4096)
@@ -500,22 +580,26 @@ def mitsuba_markdown(res: dict) -> str:
                                   else "**not met**") + ".", "",
               "Error vs time (each against its own converged reference: Mitsuba 4096 spp; "
               f"jaxrt {res['ref_spp']} spp with that reference's variance removed):", "",
-              "| renderer | spp | seconds | RMSE | 1/(MSE·s) |", "|---|---:|---:|---:|---:|"]
-    for row in m["rows"]:
-        lines.append(f"| Mitsuba | {row['spp']} | {row['seconds']:.3f} | {row['rmse']:.4f} | "
-                     f"{row['efficiency']:.3g} |")
-    for s, v in j.items():
-        for row in v["rows"]:
-            lines.append(f"| jaxrt {s} | {row['spp']} | {row['seconds']:.3f} | "
-                         f"{row['rmse']:.4f} | {row['efficiency']:.3g} |")
+              f"Each row is one render of that many spp from scratch, median of "
+              f"{res.get('rounds', 1)} interleaved rounds (wall and process CPU seconds):", "",
+              "| renderer | spp | seconds | CPU s | RMSE | 1/(MSE·s) |",
+              "|---|---:|---:|---:|---:|---:|"]
+    for s, rows in [("Mitsuba", m["rows"])] + [(f"jaxrt {s}", v["rows"]) for s, v in j.items()]:
+        for row in rows:
+            lines.append(f"| {s} | {row['spp']} | {row['seconds']:.3f} | "
+                         f"{row.get('cpu_seconds', float('nan')):.3f} | {row['rmse']:.4f} | "
+                         f"{row['efficiency']:.3g} |")
     lines += ["", "Time to reach the same RMSE (log-log interpolation, "
-              "`mitsuba_cornell.time_to_rmse`; target ≤ 1.0×):", "",
-              "| RMSE | Mitsuba s | jaxrt independent s | ratio | jaxrt sobol s | ratio |",
-              "|---:|---:|---:|---:|---:|---:|"]
+              "`mitsuba_cornell.time_to_rmse`), jaxrt ÷ Mitsuba per wall second and per "
+              "CPU-second (issue 10's target: Sobol ≤ 0.5× at RMSE 0.03):", "",
+              "| RMSE | Mitsuba s | jaxrt independent s | ratio (CPU) | jaxrt sobol s | "
+              "ratio (CPU) |", "|---:|---:|---:|---:|---:|---:|"]
     for target, e in r["time_to_rmse"].items():
+        cpu = lambda k, e=e: f" ({e[k]:.2f})" if k in e else ""  # noqa: E731
         lines.append(f"| {target} | {e['mitsuba_s']:.3f} | {e['jaxrt_independent_s']:.3f} | "
-                     f"{e['ratio_independent']:.2f} | {e['jaxrt_sobol_s']:.3f} | "
-                     f"{e['ratio_sobol']:.2f} |")
+                     f"{e['ratio_independent']:.2f}{cpu('ratio_independent_cpu')} | "
+                     f"{e['jaxrt_sobol_s']:.3f} | {e['ratio_sobol']:.2f}"
+                     f"{cpu('ratio_sobol_cpu')} |")
     a = res["agreement"]
     lines += ["", f"Converged images agree: {a['blocks']} block z-scores (16×16-pixel blocks × "
               f"RGB) of jaxrt's {res['ref_spp']}-spp reference minus Mitsuba's 4096-spp one: "

@@ -141,3 +141,12 @@ def test_target_per_cpu_second():
     import paired_vs_mitsuba as pvm
 
     assert pvm.paired(spp=32, rounds=4)["ratio_per_cpu_s"] >= 0.45
+
+
+def test_target_sobol_time_to_equal_error(comparison):
+    """Issue 10: with the Sobol stream, jaxrt reaches RMSE 0.03 in ≤ 0.5× Mitsuba's time (both
+    timed as renders of each spp from scratch in the same interleaved rounds)."""
+    e = comparison["ratios"]["time_to_rmse"]["0.03"]
+    print(f"\n  RMSE 0.03: jaxrt sobol ÷ Mitsuba {e['ratio_sobol']:.2f} per wall s, "
+          f"{e['ratio_sobol_cpu']:.2f} per CPU-s")
+    assert e["ratio_sobol"] <= 0.5 and e["ratio_sobol_cpu"] <= 0.5
