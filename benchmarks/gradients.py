@@ -47,7 +47,7 @@ from jaxrt.differentiable import (
     scene_params,
     with_params,
 )
-from jaxrt.estimators import COMPILER_OPTIONS, make_estimator, prepare_scene
+from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
 
 
 def _maxrss_mb() -> float:
@@ -107,12 +107,12 @@ def _cost(size: int, count: int, rounds: int) -> None:
     seed, start = jnp.uint32(0), jnp.int32(0)
     # the primal as render compiles it (its compiler options: 512-bit vectors)
     primal = jax.jit(lambda s: _image_sums(s, seed, start, **static),
-                     compiler_options=COMPILER_OPTIONS)
+                     compiler_options=compiler_options())
     t0 = time.perf_counter()
     primal = primal.lower(scene).compile()
     t_cp = time.perf_counter() - t0
     t0 = time.perf_counter()
-    grad = _vjp_pass.lower(scene, theta, c, seed, start, **static).compile()
+    grad = _vjp_pass.program().lower(scene, theta, c, seed, start, **static).compile()
     t_cg = time.perf_counter() - t0
     runs = {"primal": lambda: primal(scene),
             "gradient": lambda: grad(scene, theta, c, seed, start)}

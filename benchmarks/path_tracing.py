@@ -8,9 +8,10 @@ indirect light adds.
 unbounded, Russian roulette from depth 5, box filter, independent sampler) render the box at
 1, 2, 4, … 64 spp; each image's RMSE is taken against Mitsuba's converged image (2 048 spp,
 seeds disjoint from the runs'; its own noise inflates the measured MSE by ≈ 1 + spp/2048).
-jaxrt's levels are passes of the program ``render`` runs (``convergence.progressive`` with one
-pass per level, every pass compiled before the clock starts); Mitsuba's are ``mi.render``
-calls after a warm-up. jaxrt's ``mis`` (direct light only) is run the same way against
+Every level is one render of that many spp from scratch: for jaxrt one pass of the program
+``render`` runs (compiled before the clock starts), for Mitsuba one ``mi.render`` call after a
+warm-up; all levels of all three renderers are timed in the same 3 interleaved rounds
+(medians, wall and CPU seconds). jaxrt's ``mis`` (direct light only) is run the same way against
 Mitsuba's converged direct image, for the cost of the indirect light at equal relative error.
 Writes ``benchmarks/plots/path_rmse_vs_time.png`` and prints the time each needs to reach RMSE
 0.05 and 0.03 (log-log interpolation, ``time_to_rmse``).
@@ -25,7 +26,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -69,53 +69,53 @@ def mitsuba_path_reference(spp: int = REFERENCE_SPP, width: int = SIZE,
     return img
 
 
-def mitsuba_rows(reference: np.ndarray, levels=LEVELS, seed: int = 100) -> list[dict]:
-    """Mitsuba's (spp, seconds, rmse) at each level, one ``mi.render`` each after a warm-up."""
-    mi, scene = mitsuba_path_scene(reference.shape[1], reference.shape[0])
-    np.array(mi.render(scene, spp=1, seed=seed))  # warm-up: Dr.Jit kernels
-    rows = []
-    for i, spp in enumerate(levels):
-        t0 = time.perf_counter()
-        img = np.array(mi.render(scene, spp=int(spp), seed=seed + 1 + i))
-        rows.append({"spp": int(spp), "seconds": time.perf_counter() - t0,
-                     "rmse": mc.rmse(img, reference)})
-    return rows
-
-
-def jaxrt_rows(reference: np.ndarray, levels=LEVELS,
-               estimator: str = "path") -> tuple[list[dict], float]:
-    """jaxrt's (spp, seconds, rmse) at each level, progressive passes of the render program."""
-    from convergence import progressive
+def paired_rows(reference: np.ndarray, direct_reference: np.ndarray, levels=LEVELS,
+                rounds: int = 3, seed: int = 100) -> tuple[dict, float]:
+    """(spp, seconds, cpu_seconds, rmse) rows of jaxrt ``path``, Mitsuba ``path`` and jaxrt
+    ``mis``, every level one render from scratch, all timed in the same interleaved rounds
+    (``convergence.paired_level_times``); and jaxrt's compile seconds (path)."""
+    from convergence import level_renderer, paired_level_times
 
     from jaxrt.scenes import cornell_box
 
-    rows, t_compile = progressive(cornell_box(reference.shape[1], reference.shape[0]),
-                                  estimator, levels=levels, pass_spp=None)
-    return [{"spp": r["spp"], "seconds": r["seconds"], "rmse": mc.rmse(r["image"], reference)}
-            for r in rows], t_compile
+    mi, scene = mitsuba_path_scene(reference.shape[1], reference.shape[0])
+    box = cornell_box(reference.shape[1], reference.shape[0])
+    path_fn, t_compile = level_renderer(box, "path", levels)
+    mis_fn, _ = level_renderer(box, "mis", levels)
+    images, times = paired_level_times({
+        "jaxrt": (levels, lambda i, spp: path_fn(spp)[0]),
+        "mitsuba": (levels, lambda i, spp: np.array(mi.render(scene, spp=int(spp),
+                                                             seed=seed + 1 + i))),
+        "jaxrt mis": (levels, lambda i, spp: mis_fn(spp)[0])}, rounds)
+    refs = {"jaxrt": reference, "mitsuba": reference, "jaxrt mis": direct_reference}
+    rows = {name: [{"spp": int(spp), **times[name][spp],
+                    "rmse": mc.rmse(images[name][spp], refs[name]),
+                    "rel_rmse": mc.rmse(images[name][spp], refs[name])
+                    / float(np.mean(refs[name]))} for spp in levels] for name in refs}
+    return rows, t_compile
 
 
 def convergence(out: Path = HERE / "plots" / "path_rmse_vs_time.png") -> dict:
     """RMSE against time for both renderers; see the module docstring."""
     reference = mitsuba_path_reference()
-    load = os.getloadavg()
-    jx, t_compile = jaxrt_rows(reference)
-    mt = mitsuba_rows(reference)
     # direct light alone (mis), against Mitsuba's converged direct image: what the indirect
     # light costs in time for the same relative error
     direct_ref = mc.mitsuba_reference(4096, SIZE, SIZE)
-    jd, _ = jaxrt_rows(direct_ref, estimator="mis")
-    for rows, ref in ((jx, reference), (mt, reference), (jd, direct_ref)):
-        for r in rows:
-            r["rel_rmse"] = r["rmse"] / float(np.mean(ref))
+    load = os.getloadavg()
+    rows, t_compile = paired_rows(reference, direct_ref)
+    jx, mt, jd = rows["jaxrt"], rows["mitsuba"], rows["jaxrt mis"]
     res = {"load": (load, os.getloadavg()), "jaxrt_compile_s": t_compile, "jaxrt": jx,
            "mitsuba": mt, "jaxrt_direct": jd}
+    on_cpu = lambda rs: [dict(r, seconds=r["cpu_seconds"]) for r in rs]  # noqa: E731
     for target in (0.05, 0.03):
         tj, tm = mc.time_to_rmse(jx, target), mc.time_to_rmse(mt, target)
-        res[f"time_to_{target}"] = {"jaxrt_s": tj, "mitsuba_s": tm, "ratio": tj / tm}
-        print(f"RMSE {target}: jaxrt {tj:.2f} s, Mitsuba {tm:.2f} s: jaxrt/Mitsuba {tj / tm:.2f}")
-    for name, rows in (("jaxrt", jx), ("mitsuba", mt), ("jaxrt mis", jd)):
-        print(name, " ".join(f"{r['spp']}:{r['seconds']:.2f}s/{r['rmse']:.4f}" for r in rows))
+        cj, cm = mc.time_to_rmse(on_cpu(jx), target), mc.time_to_rmse(on_cpu(mt), target)
+        res[f"time_to_{target}"] = {"jaxrt_s": tj, "mitsuba_s": tm, "ratio": tj / tm,
+                                    "ratio_cpu": cj / cm}
+        print(f"RMSE {target}: jaxrt {tj:.2f} s, Mitsuba {tm:.2f} s: jaxrt/Mitsuba {tj / tm:.2f}"
+              f" per wall s, {cj / cm:.2f} per CPU-s")
+    for name, rs in rows.items():
+        print(name, " ".join(f"{r['spp']}:{r['seconds']:.2f}s/{r['rmse']:.4f}" for r in rs))
     print(f"load {res['load']}")
     _plot(jx, mt, jd, out)
     return res

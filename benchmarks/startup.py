@@ -50,7 +50,7 @@ import sys, time
 import jax, jax.numpy as jnp
 from jaxrt import scenes
 import jaxrt.passes as ps
-from jaxrt.estimators import COMPILER_OPTIONS, make_estimator, prepare_scene
+from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
 from jaxrt.render import default_spp_per_pass
 est = make_estimator(sys.argv[1])
 scene = prepare_scene(scenes.cornell_box(256, 256), est)
@@ -63,7 +63,7 @@ traced = ps.render_tiles.trace(*args, count=default_spp_per_pass(256 * 256, 64),
 t.append(clock())
 lowered = traced.lower()
 t.append(clock())
-lowered.compile(COMPILER_OPTIONS)
+lowered.compile(compiler_options())
 t.append(clock())
 print(" ".join(f"{b[0] - a[0]:.4f} {b[1] - a[1]:.4f}" for a, b in zip(t, t[1:])))
 """

@@ -3,7 +3,7 @@
 Run: ``pytest benchmarks/test_bench_intersect.py --benchmark-enable`` (add ``-k 80k`` etc. to
 select sizes). Each case records ``mrays_per_s``, ``compile_s`` (``.lower().compile()``) and
 for the BVH ``build_s`` in ``benchmark.extra_info``. Queries are compiled with jaxrt's
-``COMPILER_OPTIONS`` (as the renderer's programs are); Embree (``pip install embreex``) is
+``compiler_options()`` (as the renderer's programs are); Embree (``pip install embreex``) is
 timed in the same run and its ratio recorded. Results: benchmarks/README.md.
 """
 
@@ -16,7 +16,7 @@ import pytest
 import trimesh
 
 from jaxrt.bvh import build_bvh
-from jaxrt.estimators import COMPILER_OPTIONS
+from jaxrt.estimators import compiler_options
 from jaxrt.intersect import any_hit, closest_hit, triangle_set
 
 try:
@@ -114,7 +114,7 @@ def test_intersect_throughput(benchmark, name, accel, kind, query):
     t_max = jnp.full((o.shape[0],), jnp.inf, jnp.float32)
     t0 = time.perf_counter()
     # compiled as jaxrt compiles its own render programs (512-bit vectors: ~1.7x here)
-    fn = jax.jit(_query_fn(query)).lower(geo, o, d, t_max).compile(COMPILER_OPTIONS)
+    fn = jax.jit(_query_fn(query)).lower(geo, o, d, t_max).compile(compiler_options())
     compile_s = time.perf_counter() - t0
     jax.block_until_ready(fn(geo, o, d, t_max))  # warm-up
     benchmark.pedantic(lambda: jax.block_until_ready(fn(geo, o, d, t_max)), rounds=5,

@@ -58,10 +58,10 @@ from jax import Array, lax
 
 from jaxrt.bvh import BVH
 from jaxrt.estimators import (
-    COMPILER_OPTIONS,
     Estimator,
     PointEstimate,
     camera_sample,
+    jit_with_options,
     make_estimator,
     prepare_scene,
     samples_at,
@@ -204,8 +204,8 @@ def estimate_image(scene: Scene, estimator: str | Estimator = "mis", spp: int = 
     return s1 / jnp.asarray(spp, s1.dtype)
 
 
-@jax.jit(static_argnames=("est", "sampler", "spp_total", "count", "tile_size", "batch_size",
-                          "grad_lanes"), compiler_options=COMPILER_OPTIONS)
+@jit_with_options(static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
+                                   "batch_size", "grad_lanes"))
 def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total, count,
               tile_size, batch_size, grad_lanes=GRAD_LANES):
     """``⟨c, ∂(Σ_{pass} L / N)/∂θ⟩`` for one pass, folded per sample index.

@@ -54,6 +54,7 @@ point on the light and dimension 4 + 4k to choose the light; BSDF sample k the p
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -86,12 +87,60 @@ from jaxrt.terms import (  # re-exported: the terms the estimators are built of
     shading_point,
 )
 
-#: XLA:CPU options with which every program of the per-sample code is compiled (render passes,
-#: ``estimate_at``): set per compilation, never process-wide, so a user's own programs are
-#: untouched. 512-bit vectors made the 256² Cornell MIS render 1.5× faster per CPU-second than
-#: XLA's default (0.138 → 0.210× Mitsuba's samples per CPU-second, load ~1.9, AMD EPYC with
-#: AVX-512; on narrower CPUs XLA uses what exists) — benchmarks/README.md, "render hot path".
-COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512}
+#: XLA:CPU options wanted for every program of the per-sample code (render passes,
+#: ``estimate_at``, gradient passes): set per compilation, never process-wide, so a user's own
+#: programs are untouched; :func:`compiler_options` keeps those the installed XLA knows.
+#: Measured on the 256² Cornell box (benchmarks/README.md, "render hot path"):
+#:
+#: - ``xla_cpu_prefer_vector_width=512``: MIS 1.5× per CPU-second (AVX-512 on this AMD EPYC;
+#:   on narrower CPUs XLA uses what exists).
+#: - ``xla_cpu_experimental_ynn_fusion_type=""`` (no YNNPACK fusions): XLA:CPU hands every
+#:   reduction to YNNPACK, whose reduction over the minor axis of an (N, 3) array (each
+#:   ``vecmath.dot`` under ``vmap``) took 298 µs for N = 16 384 where XLA's own loop takes 32;
+#:   without them MIS ran 1.28× and the path tracer 1.32× faster per CPU-second, and the MIS
+#:   pass compiled in 2.1 instead of 3.0 s (paired, one process, load 1.2).
+COMPILER_OPTIONS = {"xla_cpu_prefer_vector_width": 512, "xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+@functools.cache
+def compiler_options() -> dict:
+    """The :data:`COMPILER_OPTIONS` that this jaxlib's XLA:CPU accepts, found once per process.
+
+    An option unknown to the installed version (they are experimental and come and go) would
+    fail every compilation, so each is tried on a trivial program first and left out if
+    refused. Called when the first program is compiled, not at import: compiling starts JAX's
+    backend, after which a user can no longer choose its devices.
+    """
+    probe = jax.jit(lambda x: x + 1).lower(np.float32(0))
+    accepted = {}
+    for key, value in COMPILER_OPTIONS.items():
+        try:
+            probe.compile({**accepted, key: value})
+        except Exception:  # noqa: BLE001 — XLA raises INVALID_ARGUMENT for an unknown option
+            continue
+        accepted[key] = value
+    return accepted
+
+
+def jit_with_options(**jit_kwargs):
+    """``jax.jit(fn, **jit_kwargs)`` with :func:`compiler_options`, resolved at the first call.
+
+    Used as a decorator for jaxrt's own programs; ``fn.program()`` is the jitted function
+    itself (for ``.lower``).
+    """
+    def wrap(fn):
+        @functools.cache
+        def program():
+            return jax.jit(fn, compiler_options=compiler_options(), **jit_kwargs)
+
+        @functools.wraps(fn)
+        def call(*args, **kwargs):
+            return program()(*args, **kwargs)
+
+        call.program = program
+        return call
+
+    return wrap
 
 #: The estimators of the reflection equation (direct illumination): on one scene they all
 #: estimate the same image.
@@ -377,7 +426,7 @@ def samples_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: int
     return _estimate_at(scene, est, hit, wo, jnp.uint32(seed), sampler, int(num_samples))
 
 
-@jax.jit(static_argnames=("est", "sampler", "num_samples"), compiler_options=COMPILER_OPTIONS)
+@jit_with_options(static_argnames=("est", "sampler", "num_samples"))
 def _estimate_at(scene, est, hit, wo, seed, sampler, num_samples):
     def one(k):
         s = Stream(sampler, seed, jnp.uint32(0), k, num_samples)

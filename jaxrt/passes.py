@@ -25,7 +25,7 @@ from jax import Array, lax
 
 from jaxrt import program_cache
 from jaxrt.bvh import BVH
-from jaxrt.estimators import COMPILER_OPTIONS, Estimator, Stream, camera_sample
+from jaxrt.estimators import Estimator, Stream, camera_sample, compiler_options
 from jaxrt.path import pass_sums
 from jaxrt.scene import Scene
 
@@ -219,7 +219,7 @@ class RenderPass:
         """``(function, arguments, static arguments, compiler options, device)`` of the
         program each device runs for ``count`` samples per pixel."""
         return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f, z),
-                 dict(count=count, **self.static), COMPILER_OPTIONS, d)
+                 dict(count=count, **self.static), compiler_options(), d)
                 for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
                                            self.zeros(), strict=True)]
 
