@@ -75,3 +75,35 @@ def test_where_passes_cut_the_chain_changes_no_bit(box_pass):
     for name, a, b in zip(two._fields, two, cut, strict=True):
         assert np.array_equal(a, b), (name, np.mean(a != b))
     assert np.mean(two.s1_lo != 0) > 0.5
+
+
+def test_compiler_options_keep_what_xla_accepts(monkeypatch):
+    """An option the installed XLA does not know is left out (it would fail every compile);
+    the known ones are kept."""
+    import jaxrt.estimators as E
+
+    monkeypatch.setattr(E, "COMPILER_OPTIONS",
+                        {"xla_cpu_prefer_vector_width": 512, "xla_no_such_option": 1})
+    E.compiler_options.cache_clear()
+    try:
+        assert E.compiler_options() == {"xla_cpu_prefer_vector_width": 512}
+    finally:
+        E.compiler_options.cache_clear()
+
+
+def test_pass_compiles_without_ynn_reductions():
+    """The pass is compiled with jaxrt's options: no YNNPACK fusion is left in the program
+    (each 3-vector dot was one, 9x slower than XLA's own loop; benchmarks/README.md). At 64²
+    (4 096 lanes) XLA's default makes 15 of them; below ~1 000 lanes none, so a smaller pass
+    would not tell."""
+    from jaxrt.estimators import compiler_options
+
+    if "xla_cpu_experimental_ynn_fusion_type" not in compiler_options():
+        pytest.skip("this XLA has no YNNPACK fusion option")
+    est = make_estimator("mis")
+    scene = prepare_scene(scenes.cornell_box(width=64, height=64), est)
+    run = RenderPass(scene, 7, jax.devices()[:1], 256, est=est, sampler="independent",
+                     spp_total=1, batch_size=64)
+    run.compile(1)
+    text = run.compiled[1][0].as_text()
+    assert "fusion(" in text and "__ynn_fusion" not in text
