@@ -22,7 +22,8 @@ to the full render by construction. Levels:
 7. BSDF sample — diffuse ``bsdf_sample``
 8. BSDF ray — ``spawn_ray`` + closest hit + ``emitted``
 9. pdf_li — the light pdf of the BSDF ray's hit
-10. full render — the real ``camera_sample`` (adds emitted-by-camera-hit and the MIS weights)
+10. full render — the real pass (``camera_sample``'s two halves, the camera ray's hit found
+    one sample ahead; adds emitted-by-camera-hit, the MIS weights and that overlap)
 
 It also prints what the compiled full program contains (fusions, while loops, gathers). With
 ``--trace`` it records one full render with ``jax.profiler`` and lists the kernels (XLA:CPU
@@ -52,7 +53,7 @@ import jaxrt.terms as terms_mod
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.camera import generate_ray
-from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
+from jaxrt.estimators import camera_sample, compiler_options, make_estimator, prepare_scene
 from jaxrt.render import render
 from jaxrt.scene import intersect, material_at, shading_normal
 from jaxrt.scenes import cornell_box
@@ -119,8 +120,14 @@ def truncated_sample(level: int):
 def compile_level(scene, est, level: int):
     """The render program of one pass of 1 spp with ``camera_sample`` truncated at ``level``."""
     jax.clear_caches()  # the per-sample function is looked up at trace time
-    original = ps.camera_sample
-    ps.camera_sample = truncated_sample(level)
+    original = ps.camera_hit, ps.camera_radiance
+    if level < len(LEVELS) - 1:
+        # the pass runs camera_sample as its two halves, one sample apart (passes.lane_sums);
+        # a truncated level runs whole in the second half, the first half returns a stub
+        sample = truncated_sample(level)
+        ps.camera_hit = lambda scene, pixel, s: (pixel, s.index)
+        ps.camera_radiance = lambda scene, est, hit, wo, s: sample(
+            scene, est, s.pixel, s.index, s.seed, s.kind, s.spp)
     try:
         static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
                       batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
@@ -128,10 +135,10 @@ def compile_level(scene, est, level: int):
         sums = ps.zero_sums((steps * per_step * 256,), scene.triangles.dtype)
         args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0), sums)
         t0 = time.perf_counter()
-        exe = ps.render_tiles.lower(*args, **static).compile()
+        exe = ps.render_tiles.lower(*args, **static).compile(compiler_options())
         return exe, args, time.perf_counter() - t0
     finally:
-        ps.camera_sample = original
+        ps.camera_hit, ps.camera_radiance = original
 
 
 def hlo_stats(text: str) -> dict:

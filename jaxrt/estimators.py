@@ -360,9 +360,20 @@ def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed
     their own radiance; surfaces add the estimator's direct illumination.
     """
     s = Stream(sampler, seed, pixel, index, spp)
+    hit, wo = camera_hit(scene, pixel, s)
+    return camera_radiance(scene, est, hit, wo, s)
+
+
+def camera_hit(scene: Scene, pixel: Array, s: Stream) -> tuple[SurfaceHit, Array]:
+    """The first half of :func:`camera_sample`: the camera ray's first hit and ``wo = −d``."""
     o, d = camera_ray(scene, pixel, s)
-    hit = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
-    wo = -d
+    return intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype)), -d
+
+
+def camera_radiance(scene: Scene, est: Estimator, hit: SurfaceHit, wo: Array,
+                    s: Stream) -> Array:
+    """The second half of :func:`camera_sample`: ``L_e(hit, wo)`` plus the estimator's
+    direct illumination at the hit (3,)."""
     return emitted(scene, hit, wo) + shade(scene, est, hit, wo, s)
 
 

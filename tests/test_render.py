@@ -98,13 +98,13 @@ def test_bad_arguments(box16, kwargs, match):
 def test_nonfinite_samples_are_counted_not_kept(box16, monkeypatch):
     import jaxrt.passes as R
 
-    real = R.camera_sample
+    real = R.camera_radiance  # what the pass shades each camera sample's hit with
 
-    def poisoned(scene, est, pixel, index, seed, sampler, spp):
-        v = real(scene, est, pixel, index, seed, sampler, spp)
-        return jnp.where((pixel == 5) & (index == 1), jnp.nan, v)
+    def poisoned(scene, est, hit, wo, s):
+        v = real(scene, est, hit, wo, s)
+        return jnp.where((s.pixel == 5) & (s.index == 1), jnp.nan, v)
 
-    monkeypatch.setattr(R, "camera_sample", poisoned)
+    monkeypatch.setattr(R, "camera_radiance", poisoned)
     R.render_tiles.clear_cache()
     r = render(box16, "mis", spp=4, progress=False)
     R.render_tiles.clear_cache()
