@@ -78,6 +78,31 @@ def machine_description() -> dict:
             "utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime())}
 
 
+def _render_pass(scene, estimator: str, sampler: str, seed: int, tile_size: int,
+                 batch_size: int, devices: int, spp_total: int, **params):
+    """jaxrt's :class:`~jaxrt.passes.RenderPass` for ``scene`` (what ``render`` runs), and a
+    function from its carried sums after ``n`` samples to ``(image, stderr)``, (H, W, 3)
+    float64."""
+    import jax
+
+    from jaxrt.estimators import make_estimator, prepare_scene
+    from jaxrt.passes import LANES, RenderPass, Sums
+    from jaxrt.render import _mean_and_error
+
+    est = make_estimator(estimator, **params)
+    scene = prepare_scene(scene, est)
+    run = RenderPass(scene, seed, jax.devices()[:devices], LANES * math.ceil(tile_size / LANES),
+                     est=est, sampler=sampler, spp_total=spp_total, batch_size=batch_size)
+    h, w = scene.height, scene.width
+
+    def image(sums, n: int):
+        s1, s2, _ = Sums(*(a[: h * w] for a in run.host(sums))).totals()
+        mean, err = _mean_and_error(s1, s2, n)
+        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
+
+    return run, image
+
+
 def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "independent",
                 seed: int = 0, pass_spp: int = 1, tile_size: int = 256, batch_size: int = 64,
                 devices: int = 1, **params) -> tuple[list[dict], float]:
@@ -90,42 +115,24 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
     ``(rows, compile_seconds)``; each row has ``spp``, ``seconds`` (cumulative render time,
     compile excluded), ``image`` and ``stderr`` ((H, W, 3) float64).
     """
-    import jax
-
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import LANES, RenderPass, Sums
-    from jaxrt.render import _mean_and_error
-
-
     levels = sorted(int(n) for n in levels)
-    if pass_spp is not None and any(n % pass_spp for n in levels):
+    if any(n % pass_spp for n in levels):
         raise ValueError(f"every level must be a multiple of pass_spp={pass_spp}: {levels}")
-    est = make_estimator(estimator, **params)
-    scene = prepare_scene(scene, est)
-    tile_size = LANES * math.ceil(tile_size / LANES)
     # spp only shapes the stratified stream: fixing it elsewhere lets levels share a program
-    spp_total = levels[-1] if sampler == "stratified" else 1
-    run = RenderPass(scene, seed, jax.devices()[:devices], tile_size, est=est, sampler=sampler,
-                spp_total=spp_total, batch_size=batch_size)
-    # pass_spp=None: one pass per level, of the samples the level adds (1, 1, 2, 4, 8 for
-    # levels 1, 2, 4, 8, 16), each count compiled before the clock starts
-    steps = ([b - a for a, b in zip([0] + levels[:-1], levels, strict=True)]
-             if pass_spp is None else [pass_spp])
-    t_compile = sum(run.compile(c) for c in sorted(set(steps)))
+    run, image = _render_pass(scene, estimator, sampler, seed, tile_size, batch_size, devices,
+                              levels[-1] if sampler == "stratified" else 1, **params)
+    t_compile = run.compile(pass_spp)
     h, w = scene.height, scene.width
     sums = run.zeros()
     rows, done, elapsed = [], 0, 0.0
     for level in levels:
         t0 = time.perf_counter()
         while done < level:
-            count = level - done if pass_spp is None else pass_spp
-            sums = run(sums, done, count)
-            done += count
+            sums = run(sums, done, pass_spp)
+            done += pass_spp
         elapsed += time.perf_counter() - t0
-        s1, s2, _ = Sums(*(a[: h * w] for a in run.host(sums))).totals()
-        mean, err = _mean_and_error(s1, s2, done)
-        rows.append({"spp": level, "seconds": elapsed, "image": mean.reshape(h, w, 3),
-                     "stderr": err.reshape(h, w, 3),
+        mean, err = image(sums, done)
+        rows.append({"spp": level, "seconds": elapsed, "image": mean, "stderr": err,
                      "samples_per_s": level * h * w / max(elapsed, 1e-12)})
     return rows, t_compile
 
@@ -401,27 +408,10 @@ def level_renderer(scene, estimator: str, levels, sampler: str = "independent",
     This is how a Mitsuba render of ``n`` spp is timed, so the two error-vs-time tables compare
     renders with renders (a progressive run pays each level's pass on top of the earlier ones).
     """
-    import jax
-
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import LANES, RenderPass, Sums
-    from jaxrt.render import _mean_and_error
-
-    est = make_estimator(estimator, **params)
-    scene = prepare_scene(scene, est)
-    tile_size = LANES * math.ceil(tile_size / LANES)
-    run = RenderPass(scene, seed, jax.devices()[:1], tile_size, est=est, sampler=sampler,
-                     spp_total=1 if sampler != "stratified" else max(levels),
-                     batch_size=batch_size)
+    run, image = _render_pass(scene, estimator, sampler, seed, tile_size, batch_size, 1,
+                              max(levels) if sampler == "stratified" else 1, **params)
     t_compile = sum(run.compile(int(n)) for n in sorted(set(levels)))
-    h, w = scene.height, scene.width
-
-    def render(n: int):
-        s1, s2, _ = Sums(*(a[: h * w] for a in run.host(run(run.zeros(), 0, int(n))))).totals()
-        mean, err = _mean_and_error(s1, s2, int(n))
-        return mean.reshape(h, w, 3), err.reshape(h, w, 3)
-
-    return render, t_compile
+    return (lambda n: image(run(run.zeros(), 0, int(n)), int(n))), t_compile
 
 
 def paired_level_times(renderers: dict, rounds: int = 3) -> tuple[dict, dict]:

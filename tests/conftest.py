@@ -16,3 +16,27 @@ def enable_x64():
     """Run the test body under ``jax_enable_x64`` only."""
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture
+def camera_sample_mean():
+    """``mean(scene, estimator, spp, seed, **params)``: each pixel's mean of
+    :func:`jaxrt.estimators.camera_sample` over samples ``0 … spp−1`` (H, W, 3) float64, the
+    per-sample program on its own (what ``estimate_at`` and ``image_vjp`` run), to compare
+    with the render pass that lays the same samples out in lanes."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
+
+    def mean(scene, estimator: str, spp: int, seed: int, **params):
+        est = make_estimator(estimator, **params)
+        prepared = prepare_scene(scene, est)
+        one = lambda p, k: camera_sample(prepared, est, p, k, jnp.uint32(seed), "independent",
+                                         spp)
+        values = jax.jit(jax.vmap(jax.vmap(one, (None, 0)), (0, None)))(
+            jnp.arange(scene.width * scene.height, dtype=jnp.int32),
+            jnp.arange(spp, dtype=jnp.int32))  # (pixels, spp, 3)
+        return np.asarray(values, np.float64).mean(axis=1).reshape(scene.height, scene.width, 3)
+
+    return mean

@@ -176,7 +176,7 @@ def test_forward_derivative_of_a_path_traced_image():
 
 
 @pytest.mark.parametrize("max_depth", [-1, 3])
-def test_render_pass_and_camera_sample_trace_the_same_paths(max_depth):
+def test_render_pass_and_camera_sample_trace_the_same_paths(max_depth, camera_sample_mean):
     """The render pass runs paths in regenerating, compacted lanes (``path.pass_sums``);
     ``camera_sample`` (what ``estimate_at`` and ``image_vjp`` run) walks one path with
     ``path.trace_path``. Both are the same steps on the same random numbers: the image is
@@ -184,21 +184,9 @@ def test_render_pass_and_camera_sample_trace_the_same_paths(max_depth):
     rare decisions at a tie (a roulette draw u ≈ q) that the two differently fused programs
     round apart: unbounded, 2 of 288 values differed, by 1e-4 relative. A lane that folded a
     sample twice or drew its next path from the wrong index would change most pixels."""
-    import jax
-    import jax.numpy as jnp
-
-    from jaxrt.estimators import camera_sample, prepare_scene
-
     scene = cornell_box(12, 8)
-    spp = 4
-    r = jaxrt.render(scene, "path", spp=spp, seed=6, max_depth=max_depth, progress=False)
-    est = make_estimator("path", max_depth=max_depth)
-    prepared = prepare_scene(scene, est)
-    one = lambda p, k: camera_sample(prepared, est, p, k, jnp.uint32(6), "independent", spp)
-    pixels = jnp.arange(12 * 8, dtype=jnp.int32)
-    values = jax.jit(jax.vmap(jax.vmap(one, (None, 0)), (0, None)))(
-        pixels, jnp.arange(spp, dtype=jnp.int32))  # (pixels, spp, 3)
-    mean = np.asarray(values).mean(axis=1).reshape(8, 12, 3)
+    r = jaxrt.render(scene, "path", spp=4, seed=6, max_depth=max_depth, progress=False)
+    mean = camera_sample_mean(scene, "path", 4, 6, max_depth=max_depth)
     assert mean.max() > 1 and np.mean(mean > 0) > 0.5
     close = np.isclose(r.image, mean, rtol=2e-5, atol=1e-6)
     assert close.mean() > 0.97, (close.mean(), np.abs(r.image - mean).max())
