@@ -107,18 +107,27 @@ def compiler_options() -> dict:
     """The :data:`COMPILER_OPTIONS` that this jaxlib's XLA:CPU accepts, found once per process.
 
     An option unknown to the installed version (they are experimental and come and go) would
-    fail every compilation, so each is tried on a trivial program first and left out if
-    refused. Called when the first program is compiled, not at import: compiling starts JAX's
-    backend, after which a user can no longer choose its devices.
+    fail every compilation, so they are tried on a trivial program first: all at once (one
+    probe compile, ~20 ms, in every process that compiles or reads a program), and only if
+    that fails one by one, leaving out each one refused. Called when the first program is
+    compiled, not at import: compiling starts JAX's backend, after which a user can no longer
+    choose its devices.
     """
     probe = jax.jit(lambda x: x + 1).lower(np.float32(0))
+
+    def accepts(options: dict) -> bool:
+        try:
+            probe.compile(options)
+        except Exception:  # noqa: BLE001 — XLA raises INVALID_ARGUMENT for an unknown option
+            return False
+        return True
+
+    if accepts(COMPILER_OPTIONS):
+        return dict(COMPILER_OPTIONS)
     accepted = {}
     for key, value in COMPILER_OPTIONS.items():
-        try:
-            probe.compile({**accepted, key: value})
-        except Exception:  # noqa: BLE001 — XLA raises INVALID_ARGUMENT for an unknown option
-            continue
-        accepted[key] = value
+        if accepts({**accepted, key: value}):
+            accepted[key] = value
     return accepted
 
 
