@@ -397,8 +397,10 @@ class TriangleSet(NamedTuple):
             return lax.complex(jnp.minimum(ti, t),
                                jnp.where(ti < t, i.astype(dtype), jnp.imag(best)))
 
-        best = lax.fori_loop(0, self.num_triangles, body, lax.complex(inf, jnp.asarray(-1, dtype)),
-                             unroll=_UNROLL)
+        # the carry starts as a value of the ray (inf wherever it is valid or not), so that
+        # under vmap it is batched from the start and JAX batches the body once, not twice
+        start = lax.complex(jnp.where(frame.valid, inf, inf), jnp.asarray(-1, dtype))
+        best = lax.fori_loop(0, self.num_triangles, body, start, unroll=_UNROLL)
         return _finish_hit(self, frame, jnp.real(best), jnp.imag(best).astype(jnp.int32))
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
@@ -412,7 +414,8 @@ class TriangleSet(NamedTuple):
             v = verts[i]
             return found | (self.valid[i] & intersect_triangle_hit(frame, v[0], v[1], v[2], t_max))
 
-        return lax.fori_loop(0, self.num_triangles, body, jnp.zeros((), bool), unroll=_UNROLL)
+        # a value of the ray (False), batched under vmap from the start, as in closest_hit
+        return lax.fori_loop(0, self.num_triangles, body, frame.valid & False, unroll=_UNROLL)
 
 
 def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
