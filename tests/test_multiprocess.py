@@ -56,6 +56,37 @@ def test_multi_host_options_are_checked(capsys):
     assert code == 2 and "--process-id must lie in [0, 2)" in capsys.readouterr().err
 
 
+def test_launcher_kills_a_process_that_ignores_sigterm(monkeypatch, tmp_path):
+    """Once process 0 is done, a process still running gets SIGTERM and, if it ignores it
+    (JAX's distributed runtime catches it as a preemption notice while the process waits in a
+    collective for one that has left), SIGKILL: the launcher always returns."""
+    import os
+    import time
+
+    from jaxrt import cli
+
+    ready = tmp_path / "ready"
+    # rank 1 ignores SIGTERM and says so; rank 0 exits as soon as it has
+    codes = {0: f"import os, time\nwhile not os.path.exists({str(ready)!r}): time.sleep(0.01)",
+             1: "import signal, time\nsignal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+                f"open({str(ready)!r}, 'w').close()\ntime.sleep(120)"}
+    started = []
+    real = subprocess.Popen
+
+    def popen(cmd, **kwargs):
+        rank = int(cmd[cmd.index("--process-id") + 1])
+        started.append(real([sys.executable, "-c", codes[rank]], **kwargs))
+        return started[-1]
+
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    monkeypatch.setattr(cli, "STOP_GRACE_S", 0.5)
+    t0 = time.monotonic()
+    code = cli.main(["render", "--processes", "2", "-q", "-o", str(tmp_path / "x.exr")])
+    assert time.monotonic() - t0 < 30
+    assert code == 0 and os.path.exists(ready)
+    assert [p.returncode for p in started] == [0, -9]  # rank 1: killed, not terminated
+
+
 @pytest.mark.slow  # ~20 s
 def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     """SIGINT to the launcher reaches each process once; process 0 decides, all stop after
