@@ -63,7 +63,7 @@ def test_launcher_kills_a_process_that_ignores_sigterm(monkeypatch, tmp_path):
     import os
     import time
 
-    from jaxrt import cli
+    from jaxrt import cli, launcher
 
     ready = tmp_path / "ready"
     # rank 1 ignores SIGTERM and says so; rank 0 exits as soon as it has
@@ -79,7 +79,7 @@ def test_launcher_kills_a_process_that_ignores_sigterm(monkeypatch, tmp_path):
         return started[-1]
 
     monkeypatch.setattr(subprocess, "Popen", popen)
-    monkeypatch.setattr(cli, "STOP_GRACE_S", 0.5)
+    monkeypatch.setattr(launcher, "STOP_GRACE_S", 0.5)
     t0 = time.monotonic()
     code = cli.main(["render", "--processes", "2", "-q", "-o", str(tmp_path / "x.exr")])
     assert time.monotonic() - t0 < 30
