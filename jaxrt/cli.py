@@ -19,6 +19,8 @@ import threading
 import warnings
 from pathlib import Path
 
+from jaxrt.launcher import EXIT_INTERRUPTED, launch
+
 #: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
 #: argument checks need no JAX (tests/test_cli_ux.py checks they equal the library's).
 ESTIMATOR_NAMES = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
@@ -26,7 +28,7 @@ ESTIMATOR_NAMES = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_are
 SAMPLER_NAMES = ("independent", "stratified", "sobol")
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
 DEFAULT_SPP = 64
-EXIT_USAGE, EXIT_INTERRUPTED = 2, 130
+EXIT_USAGE = 2
 
 EXAMPLES = """\
 examples:
@@ -201,8 +203,6 @@ def _render(args) -> int:
         if args.png:
             _check_output(args.png, ".png", "--png", args.force)
     if args.processes > 1:
-        from jaxrt.launcher import launch
-
         return launch(_without_option(args.argv, "--processes"), args.processes)
     adaptive = args.time_budget is not None or args.target_error is not None
     spp = args.spp if args.spp is not None else (None if adaptive else DEFAULT_SPP)

@@ -18,8 +18,8 @@ import sys
 import tempfile
 import time
 
-from jaxrt.cli import EXIT_INTERRUPTED
-
+#: Exit status of a process stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
+EXIT_INTERRUPTED = 130
 #: Seconds a process gets to exit on its own (after process 0, or after SIGTERM).
 STOP_GRACE_S = 5
 
@@ -53,7 +53,12 @@ def launch(argv: list[str], processes: int) -> int:
         if children and children[0].returncode is None:
             os.kill(children[0].pid, signal.SIGINT)
 
-    previous = signal.signal(signal.SIGINT, forward)
+    def leave(signum, frame):
+        # SIGTERM to the launcher: leave through the finally below, which kills the
+        # processes (each in its own session, they would outlive it otherwise)
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGINT, forward), signal.signal(signal.SIGTERM, leave)
     try:
         for rank in range(processes):
             log = tempfile.TemporaryFile() if rank else None
@@ -85,7 +90,8 @@ def launch(argv: list[str], processes: int) -> int:
                     children[rank].kill()
             time.sleep(0.05)
     finally:
-        signal.signal(signal.SIGINT, previous)
+        signal.signal(signal.SIGINT, previous[0])
+        signal.signal(signal.SIGTERM, previous[1])
         for child in children:
             if child.poll() is None:
                 child.kill()

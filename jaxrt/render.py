@@ -223,7 +223,11 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
     t_start = time.perf_counter()
     last_pass = 0.0
     with _sigint_flag(stop) as interrupted:
-        while not interrupted.is_set() and (spp is None or done < spp):
+        # with several processes only the agreed decision ends the loop: a process that left
+        # on its own flag (set between passes) would wait in the final gather while the others
+        # wait for it in the next pass's agreement (a deadlock; tests/test_multiprocess.py)
+        while ((num_procs > 1 or not interrupted.is_set())
+               and (spp is None or done < spp)):
             count = spp_per_pass if spp is None else min(spp_per_pass, spp - done)
             t_pass = time.perf_counter()
             # a shorter last pass compiles its own program (count is static)

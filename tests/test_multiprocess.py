@@ -56,6 +56,46 @@ def test_multi_host_options_are_checked(capsys):
     assert code == 2 and "--process-id must lie in [0, 2)" in capsys.readouterr().err
 
 
+AGREE = """
+import sys, threading
+import jax
+rank, port = int(sys.argv[1]), sys.argv[2]
+jax.distributed.initialize(f"127.0.0.1:{port}", num_processes=2, process_id=rank)
+from jaxrt import RenderInterrupted, scenes
+from jaxrt.render import render
+stop = threading.Event()
+if rank == 0:
+    stop.set()  # Ctrl-C on process 0 before a pass begins; process 1 knows nothing of it
+try:
+    render(scenes.cornell_box(16, 12), "mis", spp=8, spp_per_pass=2, stop=stop, progress=False)
+    print("finished")
+except RenderInterrupted as e:
+    print("interrupted", e.result.spp)
+"""
+
+
+@pytest.mark.slow  # ~15 s: two processes compile
+def test_a_stop_flag_set_between_passes_stops_every_process_together():
+    """Process 0's Ctrl-C flag, set between passes, ends the loop only through the agreed
+    decision: leaving on its own, it waited in the final gather while process 1 waited for
+    it in the next pass's agreement (a deadlock that hung CI's Ctrl-C test)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = str(sock.getsockname()[1])
+    procs = [subprocess.Popen([sys.executable, "-c", AGREE, str(rank), port],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for rank in range(2)]
+    try:
+        outs = [p.communicate(timeout=180) for p in procs]
+    finally:
+        for p in procs:
+            p.kill()
+    last = [(out.strip().splitlines() or [""])[-1] for out, _ in outs]
+    assert last == ["interrupted 2"] * 2, [(out, err[-1500:]) for out, err in outs]
+
+
 def test_launcher_kills_a_process_that_ignores_sigterm(monkeypatch, tmp_path):
     """Once process 0 is done, a process still running gets SIGTERM and, if it ignores it
     (JAX's distributed runtime catches it as a preemption notice while the process waits in a
@@ -116,7 +156,12 @@ def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
         time.sleep(0.05)
     proc.send_signal(signal.SIGINT)
     t0 = time.monotonic()
-    rc = proc.wait(timeout=60)
+    try:
+        rc = proc.wait(timeout=60)
+    finally:  # on a hang, SIGTERM makes the launcher kill its processes before it leaves
+        if proc.poll() is None:
+            proc.terminate()
+            proc.wait(timeout=30)
     elapsed = time.monotonic() - t0
     reader.join(10)
     text = err.decode(errors="replace")
