@@ -2,10 +2,11 @@
 
     python benchmarks/shared_scalars.py [--lanes 16384] [--rounds 30]
 
-The step a path tracer takes after a BSDF sample, for ``--lanes`` lanes under ``vmap``: a
-hashed cosine-weighted direction (``sin``/``cos`` of the hash), its frame change to world
-space, the side of the spawn offset (a dot product with the normal) and the select of the
-continuing segment against a regenerated camera ray. Three ways to write the same step:
+The step a path tracer takes after a BSDF sample, for ``--lanes`` lanes under ``vmap``:
+jaxrt's cosine-weighted warp of two hashed uniforms (``jaxrt.sampler``; ``sin``/``cos`` of
+the concentric map), its frame change to world space (``jaxrt.vecmath``), the side of the
+spawn offset (a dot product with the normal) and the select of the continuing segment
+against a regenerated camera ray. Three ways to write the same step:
 
 - ``aos``: (3,) vectors, as jaxrt's shading code is written (vmapped: (N, 3) arrays);
 - ``soa``: every vector as three scalars (vmapped: three (N,) arrays);
@@ -27,47 +28,35 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxrt import sampler, warp
 from jaxrt.estimators import compiler_options
-
-
-def _uniform(i, dim):
-    x = (i * jnp.uint32(0x9E3779B9)) ^ (jnp.uint32(dim) * jnp.uint32(0x85EBCA6B))
-    for _ in range(3):
-        x = (x ^ (x >> 16)) * jnp.uint32(0x7FEB352D)
-        x = (x ^ (x >> 15)) * jnp.uint32(0x846CA68B)
-    return (x >> 8).astype(jnp.float32) * (2.0 ** -24)
+from jaxrt.vecmath import coordinate_system, to_world
 
 
 def _local_direction(i):
-    u1, u2 = _uniform(i, 6), _uniform(i, 7)
-    r, phi = jnp.sqrt(u1), 2 * jnp.pi * u2
-    return r * jnp.cos(phi), r * jnp.sin(phi), jnp.sqrt(jnp.maximum(0.0, 1 - u1))
-
-
-def _frame(n):
-    """Duff et al.'s branchless tangents of unit ``n`` (3 scalars each)."""
-    nx, ny, nz = n
-    sign = jnp.where(nz >= 0, 1.0, -1.0)
-    a = -1 / (sign + nz)
-    b = nx * ny * a
-    return (1 + sign * nx * nx * a, sign * b, -sign * nx), (b, sign + ny * ny * a, -ny)
+    """jaxrt's own cosine sample (``warp.square_to_cosine_hemisphere``) of the independent
+    stream's dimensions 6-7 of sample ``i``, as its three components."""
+    u = jnp.stack([sampler.independent_1d(0, i, 0, 6), sampler.independent_1d(0, i, 0, 7)])
+    v = warp.square_to_cosine_hemisphere(u)
+    return v[0], v[1], v[2]
 
 
 def step(form: str):
     """The per-lane step in ``form`` (``aos``, ``soa`` or ``dot``)."""
     def aos(i, n, p, camera, ended):
         x, y, z = _local_direction(i)
-        s, t = (jnp.stack(v) for v in _frame(tuple(n)))
         if form == "dot":
+            s, t = coordinate_system(n)
             wi = jnp.stack([s, t, n], axis=1) @ jnp.stack([x, y, z])
         else:
-            wi = s * x + t * y + n * z
+            wi = to_world(jnp.stack([x, y, z]), n)  # jaxrt's frame change
         side = jnp.where(jnp.sum(wi * n) > 0, 1.0, -1.0)
         return (jnp.where(ended, camera, wi), jnp.where(ended, 0.0, p + side * 1e-4 * n), z)
 
     def soa(i, n, p, camera, ended):
         x, y, z = _local_direction(i)
-        s, t = _frame(n)
+        # jaxrt's tangents, taken apart into components (XLA folds the slices of the stack)
+        s, t = (tuple(v[k] for k in range(3)) for v in coordinate_system(jnp.stack(n)))
         wi = tuple(s[k] * x + t[k] * y + n[k] * z for k in range(3))
         side = jnp.where(wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0, 1.0, -1.0)
         return (tuple(jnp.where(ended, camera[k], wi[k]) for k in range(3)),
@@ -85,7 +74,7 @@ def main(argv=None) -> None:
     n = rng.normal(size=(a.lanes, 3)).astype(np.float32)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     p, camera = (rng.normal(size=(a.lanes, 3)).astype(np.float32) for _ in range(2))
-    lanes = jnp.arange(a.lanes, dtype=jnp.uint32)
+    lanes = jnp.arange(a.lanes, dtype=jnp.int32)
     ended = jnp.asarray(rng.random(a.lanes) < 0.2)
     columns = lambda v: tuple(jnp.asarray(v[:, k]) for k in range(3))  # noqa: E731
     args = {"aos": (lanes, n, p, camera, ended), "dot": (lanes, n, p, camera, ended),

@@ -33,7 +33,8 @@ def launch(argv: list[str], processes: int) -> int:
 
     ``argv``: the command's arguments (without ``--processes``), given to every process with
     its ``--coordinator``, ``--num-processes`` and ``--process-id``. Returns the exit status:
-    process 0's, or that of the first other process that failed.
+    process 0's, or that of the first other process that failed (143 when the launcher itself
+    got SIGTERM, after killing the processes).
     """
     with socket.socket() as sock:  # a free port for the coordinator
         sock.bind(("127.0.0.1", 0))
@@ -53,10 +54,13 @@ def launch(argv: list[str], processes: int) -> int:
         if children and children[0].returncode is None:
             os.kill(children[0].pid, signal.SIGINT)
 
+    leaving: list[int] = []
+
     def leave(signum, frame):
-        # SIGTERM to the launcher: leave through the finally below, which kills the
-        # processes (each in its own session, they would outlive it otherwise)
-        raise SystemExit(128 + signum)
+        # SIGTERM to the launcher: the loop below leaves through its finally, which kills
+        # the processes (each in its own session, they would outlive it otherwise); a flag,
+        # not an exception, for the same reason as in forward
+        leaving.append(signum)
 
     previous = signal.signal(signal.SIGINT, forward), signal.signal(signal.SIGTERM, leave)
     try:
@@ -69,7 +73,7 @@ def launch(argv: list[str], processes: int) -> int:
                  str(rank)] + ([] if rank == 0 else ["-q"]),
                 stdout=subprocess.DEVNULL if rank else None, stderr=log,
                 start_new_session=True))  # Ctrl-C reaches them once, through this process
-        while len(codes) < len(children):
+        while len(codes) < len(children) and not leaving:
             for rank, child in enumerate(children):
                 if rank not in codes and child.poll() is not None:
                     codes[rank] = child.returncode
@@ -95,6 +99,8 @@ def launch(argv: list[str], processes: int) -> int:
         for child in children:
             if child.poll() is None:
                 child.kill()
+    if leaving:
+        return 128 + leaving[0]
     failed = [r for r in range(1, len(children))
               if r not in stopped and codes.get(r) not in (0, EXIT_INTERRUPTED)]
     for rank in failed:  # process 0 printed its own errors

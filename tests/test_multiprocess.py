@@ -127,6 +127,41 @@ def test_launcher_kills_a_process_that_ignores_sigterm(monkeypatch, tmp_path):
     assert [p.returncode for p in started] == [0, -9]  # rank 1: killed, not terminated
 
 
+def test_sigterm_to_the_launcher_kills_its_processes(monkeypatch, tmp_path):
+    """The processes run in sessions of their own: SIGTERM to the launcher must not leave
+    them running (it kills them and exits with 143)."""
+    import os
+    import signal
+    import threading
+    import time
+
+    from jaxrt import cli
+
+    ready = [tmp_path / "ready0", tmp_path / "ready1"]
+    started = []
+    real = subprocess.Popen
+
+    def popen(cmd, **kwargs):
+        rank = int(cmd[cmd.index("--process-id") + 1])
+        code = ("import signal, time\nsignal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+                f"open({str(ready[rank])!r}, 'w').close()\ntime.sleep(120)")
+        started.append(real([sys.executable, "-c", code], **kwargs))
+        return started[-1]
+
+    def sigterm_when_ready():
+        while not all(r.exists() for r in ready):
+            time.sleep(0.01)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(subprocess, "Popen", popen)
+    threading.Thread(target=sigterm_when_ready, daemon=True).start()
+    t0 = time.monotonic()
+    code = cli.main(["render", "--processes", "2", "-q", "-o", str(tmp_path / "x.exr")])
+    assert time.monotonic() - t0 < 30
+    assert code == 143
+    assert [p.wait(timeout=10) for p in started] == [-9, -9]
+
+
 @pytest.mark.slow  # ~20 s
 def test_ctrl_c_stops_every_process_and_process_0_writes(tmp_path):
     """SIGINT to the launcher reaches each process once; process 0 decides, all stop after
