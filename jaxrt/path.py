@@ -97,6 +97,7 @@ from jaxrt.terms import (
     shading_point,
     trace_from,
 )
+from jaxrt.vecmath import computed_once
 
 if TYPE_CHECKING:  # annotations only: jaxrt.estimators imports this module
     from jaxrt.estimators import Estimator
@@ -147,7 +148,8 @@ def scatter(scene: Scene, est: Estimator, st: PathState, s: Stream) -> tuple[Pat
     base = 2 + DIMS_PER_VERTEX * (st.vertex - 1)
     tl = _light_term(scene, st.x, s.u2(base), s.u1(base + 2))
     wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, 1, tl.pdf_light, 1, tl.pdf_bsdf))
-    radiance = st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0)
+    # read by the state and, when the path ends here, by the fold into the pixel's four sums
+    radiance = computed_once(st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0))
     b = bsdf_direction(scene, st.x, s.u2(base + 4))
     beta = st.beta * b.weight
     active = st.active

@@ -30,7 +30,7 @@ from jaxrt.scene import (
     unoccluded,
 )
 from jaxrt.spawn import spawn_ray, spawn_ray_to
-from jaxrt.vecmath import to_local, to_world
+from jaxrt.vecmath import computed_once, to_local, to_world
 
 
 class Stream(NamedTuple):
@@ -183,7 +183,8 @@ def bsdf_direction(scene: Scene, x: ShadingPoint, u: Array) -> BSDFDirection:
     s = mt.bsdf_sample(x.material, x.wo_local, u, scene.material_kinds)
     # sampling detached: the weight's derivative is that of f cos / p at a fixed wi
     weight = mt.detached_weight(x.material, x.wo_local, s, scene.material_kinds)
-    wi = to_world(lax.stop_gradient(s.wi), x.n)
+    # used by the spawn offset, the ray's traversal and (in a path) the next shading frame
+    wi = computed_once(to_world(lax.stop_gradient(s.wi), x.n))
     o, _ = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
     return BSDFDirection(weight, lax.stop_gradient(s.pdf), s.is_delta, o, wi)
 
