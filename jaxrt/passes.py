@@ -34,6 +34,7 @@ from jaxrt.estimators import (
 )
 from jaxrt.path import pass_sums
 from jaxrt.scene import Scene
+from jaxrt.vecmath import computed_once
 
 #: Tiles are rounded up to a multiple of this many pixels (the widest CPU vector of float32).
 LANES = 16
@@ -116,8 +117,10 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
         # paths of unequal length: lanes regenerate paths and are compacted (jaxrt.path)
         stream = lambda pixel, k: Stream(sampler, seed, pixel, start + k, spp_total)
         flat = jax.tree.map(lambda a: a.reshape((pixels.size,) + a.shape[pixels.ndim:]), sums)
+        # L² stored before the fold reads it (as the loop carry stores it below), so that
+        # LLVM cannot contract it into the TwoSum's adds: the same sums as `mis` at depth 2
         out = pass_sums(scene, est, stream, pixels.reshape(-1), count, flat,
-                        lambda a, v: _fold(a, _squared(v)))
+                        lambda a, v: _fold(a, (v, computed_once(v * v))))
         return jax.tree.map(lambda a, b: a.reshape(b.shape), out, sums)
 
     stream = lambda pixel, index: Stream(sampler, seed, pixel, index, spp_total)
