@@ -1,0 +1,106 @@
+"""Where a render pass's kernel time goes, by source line, and which costly values XLA recomputes.
+
+    python benchmarks/kernel_sources.py [--estimator path] [--spp 8] [--top 25]
+
+Compiles the real render pass (:class:`jaxrt.passes.RenderPass`, 256² Cornell box, the
+independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
+time to the source line of its root operation (the optimised HLO's ``stack_frame_id``
+tables), innermost frame first. Then it lists the costly operations (``sin``, ``cos``,
+``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source line appears in more than
+one kernel: XLA:CPU fuses a cheap elementwise producer into every consumer, so such a value
+is computed once per kernel that reads it (and once per element of a (…, 3) output);
+:func:`jaxrt.vecmath.computed_once` stores it. Each compaction stage of the path pass is a
+copy of its step, so there every line shows up once per stage; and one line of the
+sampler's hash serves every random dimension, so its count is mostly distinct values.
+
+This is how the ``computed_once`` change was found (benchmarks/README.md, "fifth session").
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import glob
+import gzip
+import json
+import os
+import re
+import tempfile
+
+import jax
+
+from jaxrt.estimators import make_estimator, prepare_scene
+from jaxrt.passes import RenderPass
+from jaxrt.scenes import cornell_box
+
+COSTLY = ("sine", "cosine", "rsqrt", "sqrt", "divide", "log", "exponential", "atan2", "xor")
+
+
+def source_lines(text: str) -> tuple[dict, dict]:
+    """(instruction → "file:line" of its innermost frame, fusion instruction → its
+    computation's body) of an optimised HLO module's text."""
+    tables = text.split("FileNames", 1)[1]
+    files = dict(re.findall(r'^(\d+) "([^"]*)"$', tables.split("FunctionNames", 1)[0], re.M))
+    locs = {i: f"{os.path.basename(files[f])}:{line}" for i, f, line in re.findall(
+        r"^(\d+) \{file_name_id=(\d+) function_name_id=\d+ line=(\d+)", tables, re.M)}
+    frames = dict(re.findall(r"^(\d+) \{file_location_id=(\d+) parent_frame_id=\d+\}", tables,
+                             re.M))
+    where = {name: locs.get(frames.get(sf), "?") for name, sf in re.findall(
+        r"^\s*(?:ROOT )?%(\S+) = [^\n]*?stack_frame_id=(\d+)", text, re.M)}
+    bodies = {m.group(1): m.group(2) for m in re.finditer(
+        r"^%?(\S+) [^\n]*\{\n(.*?)\n\}", text, re.M | re.S)}
+    calls = re.findall(r"^\s*(?:ROOT )?%(\S+) = \S+ fusion\([^\n]*calls=%(\S+?)[,\s]", text, re.M)
+    return where, {kernel: bodies[comp] for kernel, comp in calls if comp in bodies}
+
+
+def kernel_times(exe, args) -> dict[str, float]:
+    """Milliseconds per kernel (XLA:CPU thunk name) of one run of ``exe(*args)``."""
+    with tempfile.TemporaryDirectory() as tmp:
+        jax.profiler.start_trace(tmp, create_perfetto_trace=True)
+        jax.block_until_ready(exe(*args))
+        jax.profiler.stop_trace()
+        path = glob.glob(os.path.join(tmp, "**", "perfetto_trace.json.gz"), recursive=True)[0]
+        events = json.load(gzip.open(path))["traceEvents"]
+    ms = collections.defaultdict(float)
+    for e in events:
+        if e.get("ph") == "X":
+            ms[e.get("name", "").split(" ")[-1]] += e.get("dur", 0) / 1e3
+    return ms
+
+
+def main(argv=None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--estimator", default="path")
+    parser.add_argument("--spp", type=int, default=8)
+    parser.add_argument("--top", type=int, default=25)
+    a = parser.parse_args(argv)
+    est = make_estimator(a.estimator)
+    scene = prepare_scene(cornell_box(256, 256), est)
+    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
+                     spp_total=a.spp, batch_size=64)
+    run.compile(a.spp)
+    text = run.compiled[a.spp][0].as_text()
+    where, bodies = source_lines(text)
+    sums = jax.block_until_ready(run(run.zeros(), 0, a.spp))  # warm-up
+    ms = kernel_times(lambda s: run(s, a.spp, a.spp), (sums,))
+    by_line, total = collections.defaultdict(float), 0.0
+    for kernel, t in ms.items():
+        if kernel in where and not kernel.startswith("while"):
+            root = re.search(r"ROOT %(\S+) =", bodies[kernel]) if kernel in bodies else None
+            by_line[where.get(root.group(1), where[kernel]) if root else where[kernel]] += t
+            total += t
+    print(f"{a.estimator}, 256², {a.spp} spp: {total:.0f} ms of kernels; by source line:")
+    for line, t in sorted(by_line.items(), key=lambda r: -r[1])[:a.top]:
+        print(f"  {t:8.1f} ms {100 * t / total:5.1f} %  {line}")
+    seen = collections.defaultdict(set)
+    for kernel, body in bodies.items():
+        for instr, op in re.findall(r"%(\S+) = \S+ (" + "|".join(COSTLY) + r")\(", body):
+            seen[(op, where.get(instr, "?"))].add(kernel)
+    print("costly operations of one source line computed in several kernels:")
+    for (op, line), kernels in sorted(seen.items(), key=lambda r: -len(r[1])):
+        if len(kernels) > 1 and line != "?":
+            print(f"  {op:10s} {line:22s} {len(kernels)} kernels")
+
+
+if __name__ == "__main__":
+    main()
