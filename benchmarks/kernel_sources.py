@@ -20,14 +20,11 @@ from __future__ import annotations
 
 import argparse
 import collections
-import glob
-import gzip
-import json
 import os
 import re
-import tempfile
 
 import jax
+from profile_render import _trace_events  # this directory's profiler: one traced run
 
 from jaxrt.estimators import make_estimator, prepare_scene
 from jaxrt.passes import RenderPass
@@ -55,14 +52,8 @@ def source_lines(text: str) -> tuple[dict, dict]:
 
 def kernel_times(exe, args) -> dict[str, float]:
     """Milliseconds per kernel (XLA:CPU thunk name) of one run of ``exe(*args)``."""
-    with tempfile.TemporaryDirectory() as tmp:
-        jax.profiler.start_trace(tmp, create_perfetto_trace=True)
-        jax.block_until_ready(exe(*args))
-        jax.profiler.stop_trace()
-        path = glob.glob(os.path.join(tmp, "**", "perfetto_trace.json.gz"), recursive=True)[0]
-        events = json.load(gzip.open(path))["traceEvents"]
     ms = collections.defaultdict(float)
-    for e in events:
+    for e in _trace_events(exe, args):
         if e.get("ph") == "X":
             ms[e.get("name", "").split(" ")[-1]] += e.get("dur", 0) / 1e3
     return ms
