@@ -1,4 +1,4 @@
-"""``computed_once``: an exact identity that XLA:CPU computes once per lane."""
+"""``computed_once``: an exact identity whose value XLA:CPU stores, not recomputes."""
 
 from __future__ import annotations
 
