@@ -383,7 +383,7 @@ class TriangleSet(NamedTuple):
         frame = ray_frame(origin, direction)
         dtype = frame.sz.dtype
         inf = jnp.asarray(jnp.inf, dtype)
-        verts = self.sorted_vertices.astype(dtype)
+        verts, valid = self._loop_tables(dtype)
         t_max = jnp.asarray(t_max, dtype)
 
         def body(i, best):
@@ -391,8 +391,7 @@ class TriangleSet(NamedTuple):
             # module notes). Strictly closer, so ties keep the lowest index; the test itself
             # rejects t > t_max, so the carry starts at (inf, −1).
             v = verts[i]
-            ti = jnp.where(self.valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t_max),
-                           inf)
+            ti = jnp.where(valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t_max), inf)
             t = jnp.real(best)
             return lax.complex(jnp.minimum(ti, t),
                                jnp.where(ti < t, i.astype(dtype), jnp.imag(best)))
@@ -400,22 +399,37 @@ class TriangleSet(NamedTuple):
         # the carry starts as a value of the ray (inf wherever it is valid or not), so that
         # under vmap it is batched from the start and JAX batches the body once, not twice
         start = lax.complex(jnp.where(frame.valid, inf, inf), jnp.asarray(-1, dtype))
-        best = lax.fori_loop(0, self.num_triangles, body, start, unroll=_UNROLL)
+        best = lax.fori_loop(0, verts.shape[0], body, start, unroll=_UNROLL)
         return _finish_hit(self, frame, jnp.real(best), jnp.imag(best).astype(jnp.int32))
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
         """Whether one ray hits any triangle with ``0 < t ≤ t_max``; see :func:`any_hit`."""
         frame = ray_frame(origin, direction)
         dtype = frame.sz.dtype
-        verts = self.sorted_vertices.astype(dtype)
+        verts, valid = self._loop_tables(dtype)
         t_max = jnp.asarray(t_max, dtype)
 
         def body(i, found):
             v = verts[i]
-            return found | (self.valid[i] & intersect_triangle_hit(frame, v[0], v[1], v[2], t_max))
+            return found | (valid[i] & intersect_triangle_hit(frame, v[0], v[1], v[2], t_max))
 
         # a value of the ray (False), batched under vmap from the start, as in closest_hit
-        return lax.fori_loop(0, self.num_triangles, body, frame.valid & False, unroll=_UNROLL)
+        return lax.fori_loop(0, verts.shape[0], body, frame.valid & False, unroll=_UNROLL)
+
+    def _loop_tables(self, dtype) -> tuple[Array, Array]:
+        """Sorted vertices (F', 3, 3) and validity (F',) as the loops read them, padded with
+        never-hit triangles to a multiple of the unroll factor ``F' = 4 ⌈F/4⌉``.
+
+        A remainder after the unrolled iterations cost more than whole iterations in the
+        render: shadow rays over 22 triangles ran the 256² MIS pass 0.935× as fast as over
+        32, over the same 22 padded to 24 1.134× (paired, one process, 14 rounds).
+        """
+        verts, valid = self.sorted_vertices.astype(dtype), self.valid
+        pad = -verts.shape[0] % _UNROLL
+        if pad:
+            verts = jnp.concatenate([verts, jnp.zeros((pad, 3, 3), dtype)])
+            valid = jnp.concatenate([valid, jnp.zeros(pad, valid.dtype)])
+        return verts, valid
 
 
 def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:

@@ -44,6 +44,7 @@ from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
 from jaxrt.derivatives import nondifferentiable
 from jaxrt.intersect import any_hit, closest_hit, gamma
+from jaxrt.occluders import shadow_occluders
 from jaxrt.vecmath import device_array, dot, normalize
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
@@ -114,6 +115,8 @@ class Scene:
     lights: the light table (:mod:`jaxrt.lights`).
     camera: the camera (:mod:`jaxrt.camera`); its width and height are static.
     material_kinds: static sorted tuple of the BSDF kinds present.
+    occluders: the triangles a shadow ray tests (:func:`jaxrt.occluders.shadow_occluders`),
+        or None for all of ``geometry``.
     """
 
     geometry: Any
@@ -124,6 +127,7 @@ class Scene:
     lights: Any
     camera: Any
     material_kinds: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
+    occluders: Any = None
 
     @property
     def width(self) -> int:
@@ -144,9 +148,11 @@ class Scene:
     def summary(self) -> str:
         """A few lines describing the scene's structure (what the compiled kernel contains)."""
         kinds = ", ".join(mt.KIND_NAMES[k] for k in self.material_kinds)
+        shadow = ("" if self.occluders is None else
+                  f"; shadow rays test {self.occluders.shape[0]} of them")
         return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
-                f"({type(self.geometry).__name__}), {self.materials.kind.shape[0]} materials "
-                f"[{kinds}], lights: {describe_lights(self.lights)}")
+                f"({type(self.geometry).__name__}{shadow}), {self.materials.kind.shape[0]} "
+                f"materials [{kinds}], lights: {describe_lights(self.lights)}")
 
 
 def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = (), *,
@@ -224,6 +230,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
+        occluders=shadow_occluders(geometry, triangles, light_list),
     )
 
 
@@ -320,7 +327,14 @@ def _sphere_point_error(p: Array, o: Array, td: Array) -> Array:
 
 def unoccluded(scene: Scene, o: Array, d: Array, t_max: Array) -> Array:
     """True when nothing blocks ``o + t d`` for ``0 < t < t_max`` (a shadow ray, any hit)."""
-    blocked = any_hit(scene.geometry, o, d, t_max)
+    geometry = scene.geometry
+    if scene.occluders is None:
+        blocked = any_hit(geometry, o, d, t_max)
+    elif scene.occluders.shape[0]:
+        # the triangles that can block (jaxrt.occluders), gathered once per batch of rays
+        blocked = any_hit(jax.tree.map(lambda a: a[scene.occluders], geometry), o, d, t_max)
+    else:  # nothing in the scene can block a shadow ray
+        blocked = jnp.zeros(jnp.shape(t_max), bool)
     if scene.lights.structure.count("sphere"):
         ts, _ = lt.intersect_spheres(scene.lights, o, d, t_max)
         blocked = blocked | (ts < t_max)

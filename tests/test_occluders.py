@@ -1,0 +1,88 @@
+"""Shadow rays skip the triangles that cannot block them (jaxrt.occluders), and nothing changes."""
+
+import numpy as np
+import pytest
+
+from jaxrt import lights as lt
+from jaxrt import materials as mt
+from jaxrt.occluders import one_sided_faces
+from jaxrt.render import render
+from jaxrt.scene import build_scene, mesh
+from jaxrt.scenes import cornell_box
+from jaxrt.scenes.cornell import cornell_camera
+
+
+def _box(lo, hi):
+    """12 triangles of an axis-aligned box (vertices, faces)."""
+    (x0, y0, z0), (x1, y1, z1) = lo, hi
+    v = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], float)
+    quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
+    return v, np.array([[q[0], q[k], q[k + 1]] for q in quads for k in (1, 2)], np.int32)
+
+
+def _room(extra_lights=(), inner=True):
+    """A closed unit room (12 walls) with a small box inside and a small light quad."""
+    meshes = [mesh(*_box((0, 0, 0), (1, 1, 1)), mt.diffuse(0.5), name="room")]
+    if inner:
+        meshes.append(mesh(*_box((0.3, 0, 0.3), (0.6, 0.4, 0.6)), mt.diffuse(0.5), name="block"))
+    lv = np.array([[0.4, 0.99, 0.4], [0.6, 0.99, 0.4], [0.6, 0.99, 0.6], [0.4, 0.99, 0.6]])
+    meshes.append(mesh(lv, np.array([[0, 2, 1], [0, 3, 2]]), mt.diffuse(0.0), emission=[5.0] * 3,
+                       name="light"))
+    cam = cornell_camera(16, 16)
+    return build_scene(meshes, cam, extra_lights, accel="brute")
+
+
+def test_the_walls_of_a_room_are_one_sided_and_what_stands_inside_is_not():
+    tri = np.asarray(_room().triangles)
+    one = one_sided_faces(tri)
+    assert one[:12].all()  # the room's walls
+    # the block's bottom lies on the floor (the whole scene above it); its other faces and
+    # the light have vertices on both sides
+    bottom = np.all(tri[12:, :, 1] == 0, axis=1)
+    assert bottom.sum() == 2
+    assert np.array_equal(one[12:], bottom)
+
+
+def test_the_cornell_box_skips_its_five_walls():
+    scene = cornell_box(16, 16)
+    kept = np.asarray(scene.occluders)
+    walls = 10  # floor, ceiling, back, green and red walls: two triangles each, first
+    assert kept.tolist() == list(range(walls, scene.num_triangles))
+    assert "shadow rays test 22 of them" in scene.summary()
+
+
+@pytest.mark.parametrize("light, kept", [
+    (lt.point_light([0.5, 0.5, 0.5], [1.0] * 3), 12),  # inside: the walls still cannot block
+    (lt.point_light([0.5, 0.5, 1.5], [1.0] * 3), 14),  # behind the z = 1 wall: it can, so it stays
+    (lt.sphere_light([0.5, 0.5, 0.5], 0.2, [1.0] * 3), 12),
+    (lt.sphere_light([0.5, 0.5, 0.95], 0.2, [1.0] * 3), 14),  # the ball pokes through z = 1
+])
+def test_lights_inside_keep_the_walls_skipped_and_lights_outside_do_not(light, kept):
+    """24 of the 26 triangles can be skipped or not: 12 walls + the block's bottom skipped
+    leaves 12; a light beyond the z = 1 wall (2 triangles) keeps that wall."""
+    occluders = np.asarray(_room([light]).occluders)
+    assert occluders.size == kept
+    assert (set(range(10, 12)) <= set(occluders.tolist())) == (kept == 14)
+
+
+@pytest.mark.parametrize("light", [lt.directional_light([0, -1, 0], [1.0] * 3),
+                                   lt.constant_environment([1.0, 1.0, 1.0])])
+def test_light_from_outside_the_scene_tests_every_triangle(light):
+    assert _room([light]).occluders is None
+
+
+def test_a_bvh_scene_keeps_its_own_shadow_rays():
+    assert cornell_box(16, 16, accel="bvh").occluders is None
+
+
+@pytest.mark.parametrize("estimator", ["mis", "path"])
+def test_skipping_them_changes_no_pixel(estimator):
+    """The Cornell box renders the same bits with and without the skip; skipping a triangle
+    that can block (the tall block's faces) changes the image: the test can see a wrong skip."""
+    scene = cornell_box(24, 24)
+    run = lambda s: np.asarray(render(s, estimator, spp=4, seed=3, progress=False).image)
+    image = run(scene)
+    assert np.array_equal(image, run(scene.replace(occluders=None)))
+    blocks = np.asarray(scene.occluders)
+    wrong = scene.replace(occluders=blocks[:len(blocks) // 2])  # half the blocks skipped too
+    assert not np.array_equal(image, run(wrong))
