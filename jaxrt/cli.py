@@ -176,7 +176,8 @@ def _with_options(scene, args):
         return scene
     from jaxrt.scene import with_triangle_sampling
 
-    return scene.replace(lights=with_triangle_sampling(scene.lights, args.triangle_sampling))
+    return scene.replace(lights=with_triangle_sampling(scene.lights, args.triangle_sampling),
+                         occluders=scene.occluders)
 
 
 def _write(args, result, interrupted: bool = False) -> None:

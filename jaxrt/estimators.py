@@ -205,7 +205,9 @@ def prepare_scene(scene: Scene, est: Estimator) -> Scene:
     forces (only the static structure changes, no array is copied); unchanged otherwise."""
     if est.triangle_sampling is None:
         return scene
-    return scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling))
+    # the same lights (only how triangles are sampled changes): the same shadow-ray triangles
+    return scene.replace(lights=with_triangle_sampling(scene.lights, est.triangle_sampling),
+                         occluders=scene.occluders)
 
 
 def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:

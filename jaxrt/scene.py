@@ -142,7 +142,14 @@ class Scene:
         return int(self.triangles.shape[0])
 
     def replace(self, **changes) -> Scene:
-        """A copy with some fields replaced (e.g. a new camera or new materials)."""
+        """A copy with some fields replaced (e.g. a new camera or new materials).
+
+        ``occluders`` were found for this scene's triangles and lights: a copy with new
+        ``geometry``, ``triangles`` or ``lights`` tests every triangle on shadow rays
+        (``occluders=None``) unless ``occluders`` is given too.
+        """
+        if "occluders" not in changes and {"geometry", "triangles", "lights"} & set(changes):
+            changes["occluders"] = None
         return dataclasses.replace(self, **changes)
 
     def summary(self) -> str:
@@ -472,6 +479,7 @@ def guard_geometry(scene: Scene) -> Scene:
     camera = dataclasses.replace(cam, **{f: guard(getattr(cam, f), f"the camera's {f}")
                                          for f in ("eye", "frame", "tan_half_fov", "aspect")})
     return scene.replace(
+        occluders=scene.occluders,  # the same triangles and lights, guarded
         geometry=jax.tree.map(lambda a: guard(a, "the scene geometry (acceleration structure)"),
                               scene.geometry),
         triangles=guard(scene.triangles, "the scene's triangle vertices"),

@@ -71,6 +71,18 @@ def test_light_from_outside_the_scene_tests_every_triangle(light):
     assert _room([light]).occluders is None
 
 
+def test_new_lights_or_geometry_test_every_triangle_unless_told():
+    scene = _room()
+    sky = lt.light_table([lt.constant_environment([1.0] * 3)])
+    assert scene.replace(lights=sky).occluders is None  # the walls now block the sky
+    assert scene.replace(triangles=scene.triangles).occluders is None
+    assert scene.replace(lights=sky, occluders=scene.occluders).occluders is scene.occluders
+    assert scene.replace(camera=scene.camera).occluders is scene.occluders
+    # render prepares the scene (how triangle lights are sampled) and keeps them
+    from jaxrt.estimators import make_estimator, prepare_scene
+    assert prepare_scene(scene, make_estimator("mis")).occluders is scene.occluders
+
+
 def test_a_bvh_scene_keeps_its_own_shadow_rays():
     assert cornell_box(16, 16, accel="bvh").occluders is None
 
