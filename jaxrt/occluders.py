@@ -21,22 +21,17 @@ than that is taken as on the wall, ~10⁶ times below float32's resolution of th
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
+import jax
 import numpy as np
 
 from jaxrt.intersect import TriangleSet
-from jaxrt.lights import (
-    ConstantEnvironment,
-    DirectionalLights,
-    EnvironmentMap,
-    PointLights,
-    SphereLights,
-    SpotLights,
-    TriangleLights,
-)
 from jaxrt.vecmath import device_array
+
+#: Above this many triangles no list is made (the side test costs F × 3F on the host; brute
+#: force is chosen automatically below 96 triangles).
+MAX_TRIANGLES = 2048
 
 
 def one_sided_faces(triangles: np.ndarray, points: np.ndarray | None = None,
@@ -70,30 +65,33 @@ def one_sided_faces(triangles: np.ndarray, points: np.ndarray | None = None,
     return (norm > 0) & (below | above)
 
 
-def shadow_occluders(geometry: Any, triangles: np.ndarray, lights: Sequence[Any]):
+def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
     """(K,) int32 indices of the triangles a shadow ray must test, or None for all of them.
 
-    Brute-force scenes only (a BVH already skips what a ray cannot reach). None when a light
-    samples points outside the scene (directional, environment) or when no triangle can be
-    left out. :func:`jaxrt.scene.unoccluded` gathers these rows of the ``TriangleSet`` once
+    ``lights`` is the scene's light table (:func:`jaxrt.lights.light_table`). Brute-force
+    scenes of at most :data:`MAX_TRIANGLES` only (a BVH already skips what a ray cannot
+    reach). None when a light samples points outside the scene (directional, environment),
+    when no triangle can be left out, or when the arrays are traced (inside ``jit``: nothing
+    to read). :func:`jaxrt.scene.unoccluded` gathers these rows of the ``TriangleSet`` once
     per ray batch (its loop pads them to a multiple of its unroll factor); K may be 0.
     """
-    if not isinstance(geometry, TriangleSet):
+    s = lights.structure
+    if (not isinstance(geometry, TriangleSet) or s.count("directional")
+            or s.count("environment") or np.shape(triangles)[0] > MAX_TRIANGLES):
         return None
-    points, balls = [], []
-    for light in lights:
-        if isinstance(light, (DirectionalLights, ConstantEnvironment, EnvironmentMap)):
-            return None
-        if isinstance(light, (PointLights, SpotLights)):
-            points.append(np.asarray(light.position, np.float64).reshape(-1, 3))
-        elif isinstance(light, SphereLights):
-            balls.append(np.concatenate([np.asarray(light.center, np.float64).reshape(-1, 3),
-                                         np.asarray(light.radius, np.float64).reshape(-1, 1)],
-                                        axis=1))
-        elif not isinstance(light, TriangleLights):  # a scene triangle: among the vertices
-            return None
-    tri = np.asarray(triangles)
-    skip = one_sided_faces(tri, np.concatenate(points or [np.zeros((0, 3))]),
+    arrays = [triangles] + [getattr(lights.table(k), f) for k, f in (
+        ("point", "position"), ("spot", "position"), ("sphere", "center"), ("sphere", "radius"))
+        if s.count(k)]
+    if any(isinstance(a, jax.core.Tracer) for a in arrays):
+        return None
+    points = [np.asarray(lights.table(k).position, np.float64).reshape(-1, 3)
+              for k in ("point", "spot") if s.count(k)]
+    balls = []
+    if s.count("sphere"):  # triangle lights are scene triangles: among the vertices already
+        sph = lights.table("sphere")
+        balls.append(np.concatenate([np.asarray(sph.center, np.float64).reshape(-1, 3),
+                                     np.asarray(sph.radius, np.float64).reshape(-1, 1)], 1))
+    skip = one_sided_faces(np.asarray(triangles), np.concatenate(points or [np.zeros((0, 3))]),
                            np.concatenate(balls or [np.zeros((0, 4))]))
     if not np.any(skip):
         return None

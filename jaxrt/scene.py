@@ -144,21 +144,24 @@ class Scene:
     def replace(self, **changes) -> Scene:
         """A copy with some fields replaced (e.g. a new camera or new materials).
 
-        ``occluders`` were found for this scene's triangles and lights: a copy with new
-        ``geometry``, ``triangles`` or ``lights`` tests every triangle on shadow rays
-        (``occluders=None``) unless ``occluders`` is given too.
+        ``occluders`` belong to the scene's triangles and lights: a copy with new
+        ``geometry``, ``triangles`` or ``lights`` finds them again
+        (:func:`jaxrt.occluders.shadow_occluders`; None, every triangle tested, when the new
+        arrays are traced) unless ``occluders`` is given too.
         """
+        new = dataclasses.replace(self, **changes)
         if "occluders" not in changes and {"geometry", "triangles", "lights"} & set(changes):
-            changes["occluders"] = None
-        return dataclasses.replace(self, **changes)
+            new = dataclasses.replace(new, occluders=shadow_occluders(
+                new.geometry, new.triangles, new.lights))
+        return new
 
     def summary(self) -> str:
         """A few lines describing the scene's structure (what the compiled kernel contains)."""
         kinds = ", ".join(mt.KIND_NAMES[k] for k in self.material_kinds)
         shadow = ("" if self.occluders is None else
-                  f"; shadow rays test {self.occluders.shape[0]} of them")
+                  f", shadow rays test {self.occluders.shape[0]} of them")
         return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
-                f"({type(self.geometry).__name__}{shadow}), {self.materials.kind.shape[0]} "
+                f"({type(self.geometry).__name__}){shadow}, {self.materials.kind.shape[0]} "
                 f"materials [{kinds}], lights: {describe_lights(self.lights)}")
 
 
@@ -237,7 +240,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
-        occluders=shadow_occluders(geometry, triangles, light_list),
+        occluders=shadow_occluders(geometry, triangles, light_table),
     )
 
 

@@ -75,7 +75,8 @@ def test_new_lights_or_geometry_test_every_triangle_unless_told():
     scene = _room()
     sky = lt.light_table([lt.constant_environment([1.0] * 3)])
     assert scene.replace(lights=sky).occluders is None  # the walls now block the sky
-    assert scene.replace(triangles=scene.triangles).occluders is None
+    again = scene.replace(triangles=scene.triangles)  # found again: the same list
+    assert np.array_equal(np.asarray(again.occluders), np.asarray(scene.occluders))
     assert scene.replace(lights=sky, occluders=scene.occluders).occluders is scene.occluders
     assert scene.replace(camera=scene.camera).occluders is scene.occluders
     # render prepares the scene (how triangle lights are sampled) and keeps them
