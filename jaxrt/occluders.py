@@ -29,9 +29,10 @@ import numpy as np
 from jaxrt.intersect import TriangleSet
 from jaxrt.vecmath import device_array
 
-#: Above this many triangles no list is made (the side test costs F × 3F on the host; brute
+#: Above this many triangles no list is made (the side test is an F × 3F float64 matrix on the
+#: host, 6 MB at 512, run again by every Scene.replace of geometry or lights; brute
 #: force is chosen automatically below 96 triangles).
-MAX_TRIANGLES = 2048
+MAX_TRIANGLES = 512
 
 
 def one_sided_faces(triangles: np.ndarray, points: np.ndarray | None = None,
