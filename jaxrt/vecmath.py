@@ -132,6 +132,53 @@ def reflect(w: Array, n: Array) -> Array:
     return 2 * dot(w, n) * n - w
 
 
+def _taylor(coefficients: list[int], x2: Array) -> Array:
+    """``Σ_k x2^k / c_k`` by Horner's rule (``c_k`` the signed factorials)."""
+    acc = jnp.asarray(1 / coefficients[-1], x2.dtype)
+    for c in coefficients[-2::-1]:
+        acc = jnp.asarray(1 / c, x2.dtype) + x2 * acc
+    return acc
+
+
+def cos_sin_octant(s: Array) -> tuple[Array, Array]:
+    """``(cos φ, sin φ)`` of ``φ = π s / 4`` for ``|s| ≤ 1`` (an octant), by polynomials.
+
+    Taylor series to the first term below the dtype's rounding on ``|φ| ≤ π/4``: ``φ^9`` for
+    sine and ``φ^10`` for cosine in float32 (truncation < 2·10⁻⁹), ``φ^17`` and ``φ^18`` in
+    float64 (< 10⁻¹⁸); the result is within a few ulps of the true value. Vector
+    arithmetic only: XLA:CPU calls the scalar ``sincosf`` of libm for ``jnp.cos``/``jnp.sin``
+    once per element, 4.7 % of the CPU time of the 256² Cornell box MIS pass (perf) for the
+    concentric disk map alone.
+    """
+    phi = jnp.asarray(np.pi / 4, s.dtype) * s
+    x2 = phi * phi
+    terms = 5 if s.dtype == jnp.float32 else 9
+    sine = [(-1) ** k * float(np.prod(np.arange(1, 2 * k + 2))) for k in range(terms)]
+    cosine = [(-1) ** k * float(np.prod(np.arange(1, 2 * k + 1))) for k in range(terms + 1)]
+    return _taylor(cosine, x2), phi * _taylor(sine, x2)
+
+
+def cos_sin_turn(t: Array) -> tuple[Array, Array]:
+    """``(cos 2πt, sin 2πt)`` for ``t ∈ [0, 1]`` (a turn), by :func:`cos_sin_octant`.
+
+    ``q = round(4t)`` quarter turns and ``s = 8t − 2q ∈ [−1, 1]`` (exact: a power-of-two
+    scaling and a Sterbenz subtraction), so ``2πt = qπ/2 + πs/4`` and the result is the
+    octant's pair rotated by ``q`` quarter turns: exactly as accurate.
+    """
+    q = jnp.round(4 * t)
+    c, s = cos_sin_octant(8 * t - 2 * q)
+    m = q.astype(jnp.int32) % 4
+    return (jnp.where(m == 0, c, jnp.where(m == 1, -s, jnp.where(m == 2, -c, s))),
+            jnp.where(m == 0, s, jnp.where(m == 1, c, jnp.where(m == 2, -s, -c))))
+
+
+def spherical_direction_turn(sin_theta: Array, cos_theta: Array, t: Array) -> Array:
+    """:func:`spherical_direction` with ``φ = 2π t`` (``t ∈ [0, 1]``), without ``sin``/``cos``
+    (:func:`cos_sin_turn`): the form every warp that draws ``φ = 2π u`` uses."""
+    c, s = cos_sin_turn(t)
+    return jnp.stack([sin_theta * c, sin_theta * s, cos_theta])
+
+
 def spherical_direction(sin_theta: Array, cos_theta: Array, phi: Array) -> Array:
     """Unit vector ``(sinθ cosφ, sinθ sinφ, cosθ)`` in a local frame with +z as the pole."""
     return jnp.stack([sin_theta * jnp.cos(phi), sin_theta * jnp.sin(phi), cos_theta])

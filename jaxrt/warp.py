@@ -28,7 +28,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 from jax import Array
 
-from jaxrt.vecmath import spherical_direction, spherical_phi
+from jaxrt.vecmath import cos_sin_octant, cos_sin_turn, spherical_direction_turn, spherical_phi
 from jaxrt.warp_microfacet import (
     beckmann_d,
     beckmann_to_square,
@@ -139,8 +139,8 @@ def square_to_uniform_disk(u: Array) -> Array:
     Returns (2,) point ``(r cos φ, r sin φ)``. PBR 3rd ed. §13.6.2.
     """
     r = jnp.sqrt(u[0])
-    phi = 2 * jnp.pi * u[1]
-    return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
+    c, s = cos_sin_turn(u[1])
+    return jnp.stack([r * c, r * s])
 
 
 def square_to_uniform_disk_pdf(p: Array) -> Array:
@@ -168,14 +168,14 @@ def square_to_uniform_disk_concentric(u: Array) -> Array:
     a = 2 * u[0] - 1
     b = 2 * u[1] - 1
     one = jnp.ones_like(a)
-    quarter_pi = jnp.asarray(jnp.pi / 4, a.dtype)
     horizontal = jnp.abs(a) > jnp.abs(b)
     # NaN-safe ratios: the unused branch never divides by zero
     b_over_a = b / jnp.where(a != 0, a, one)
     a_over_b = a / jnp.where(b != 0, b, one)
     r = jnp.where(horizontal, a, b)
-    phi = jnp.where(horizontal, quarter_pi * b_over_a, 2 * quarter_pi - quarter_pi * a_over_b)
-    return jnp.stack([r * jnp.cos(phi), r * jnp.sin(phi)])
+    # φ = π/4 · b/a, or π/2 − π/4 · a/b whose cosine and sine are those of π/4 · a/b swapped
+    c, s = cos_sin_octant(jnp.where(horizontal, b_over_a, a_over_b))
+    return jnp.stack([r * jnp.where(horizontal, c, s), r * jnp.where(horizontal, s, c)])
 
 
 def square_to_uniform_disk_concentric_pdf(p: Array) -> Array:
@@ -213,7 +213,7 @@ def square_to_uniform_sphere(u: Array) -> Array:
     """
     cos_t = 1 - 2 * u[0]
     sin_t = 2 * jnp.sqrt(jnp.maximum(u[0] * (1 - u[0]), jnp.zeros_like(u[0])))
-    return spherical_direction(sin_t, cos_t, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, cos_t, u[1])
 
 
 def square_to_uniform_sphere_pdf(v: Array) -> Array:
@@ -234,7 +234,7 @@ def square_to_uniform_hemisphere(u: Array) -> Array:
     """
     cos_t = u[0]
     sin_t = jnp.sqrt(jnp.maximum((1 - cos_t) * (1 + cos_t), jnp.zeros_like(cos_t)))
-    return spherical_direction(sin_t, cos_t, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, cos_t, u[1])
 
 
 def square_to_uniform_hemisphere_pdf(v: Array) -> Array:
@@ -283,7 +283,7 @@ def _cone_sample(u: Array, one_minus_cos_max: Array) -> Array:
     # 1 − cos θ is uniform on [0, 1 − cos θmax]
     om = u[0] * one_minus_cos_max
     sin_t = jnp.sqrt(jnp.maximum(om * (2 - om), jnp.zeros_like(om)))
-    return spherical_direction(sin_t, 1 - om, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, 1 - om, u[1])
 
 
 def _cone_pdf(v: Array, one_minus_cos_max: Array) -> Array:
@@ -433,7 +433,7 @@ def square_to_phong_lobe(u: Array, exponent: Array) -> Array:
     """
     one_minus_cos = -jnp.expm1(jnp.log(u[0]) / (exponent + 1))
     sin_t = jnp.sqrt(jnp.maximum(one_minus_cos * (2 - one_minus_cos), 0 * one_minus_cos))
-    return spherical_direction(sin_t, 1 - one_minus_cos, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, 1 - one_minus_cos, u[1])
 
 
 def _cos_power(v: Array, n: Array) -> Array:

@@ -15,7 +15,14 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from jaxrt.vecmath import cross, dot, normalize, spherical_direction, spherical_phi
+from jaxrt.vecmath import (
+    cos_sin_turn,
+    cross,
+    dot,
+    normalize,
+    spherical_direction_turn,
+    spherical_phi,
+)
 
 
 def _sin2(h: Array) -> Array:
@@ -56,7 +63,7 @@ def square_to_ggx(u: Array, alpha: Array) -> Array:
     denom = (1 - u[0]) + a2u
     cos_t = jnp.sqrt((1 - u[0]) / denom)
     sin_t = jnp.sqrt(a2u / denom)
-    return spherical_direction(sin_t, cos_t, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, cos_t, u[1])
 
 
 def square_to_ggx_pdf(h: Array, alpha: Array) -> Array:
@@ -112,9 +119,8 @@ def square_to_ggx_visible(u: Array, wo: Array, alpha: Array) -> Array:
     t2 = cross(vh, t1)
     # uniform point of the unit disk (polar map)
     r = jnp.sqrt(u[0])
-    phi = 2 * jnp.pi * u[1]
-    p1 = r * jnp.cos(phi)
-    p2 = r * jnp.sin(phi)
+    c, s = cos_sin_turn(u[1])
+    p1, p2 = r * c, r * s
     # squash the far half of the disk onto the projected hemisphere
     s = (1 + vh[2]) / 2
     p2 = (1 - s) * jnp.sqrt(jnp.maximum(1 - p1 * p1, zero)) + s * p2
@@ -162,7 +168,7 @@ def square_to_beckmann(u: Array, alpha: Array) -> Array:
     tan2 = -alpha * alpha * jnp.log1p(-u[0])
     cos_t = 1 / jnp.sqrt(1 + tan2)
     sin_t = jnp.sqrt(tan2 / (1 + tan2))
-    return spherical_direction(sin_t, cos_t, 2 * jnp.pi * u[1])
+    return spherical_direction_turn(sin_t, cos_t, u[1])
 
 
 def square_to_beckmann_pdf(h: Array, alpha: Array) -> Array:

@@ -70,3 +70,77 @@ def test_a_direction_used_twice_is_computed_in_one_kernel():
     a, b = jax.jit(jax.vmap(step(False)))(*args), jax.jit(jax.vmap(step(True)))(*args)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
+
+
+def test_cos_sin_octant_is_within_three_ulps_in_both_dtypes(x64):
+    """The polynomial cosine and sine of ``π s / 4`` against numpy's float64 (libm), on the
+    whole octant and at its ends; under x64 the float64 series (a float32-length series there
+    is off by ~10⁻⁹, thousands of ulps: the test would catch it)."""
+    from jaxrt.vecmath import cos_sin_octant
+
+    dtype = np.float64 if x64 else np.float32
+    s = np.concatenate([np.linspace(-1, 1, 100_001), [-1.0, -0.0, 0.0, 1e-30, 1.0]])
+    s = s.astype(dtype)
+    c, si = (np.asarray(v, np.float64) for v in jax.jit(cos_sin_octant)(jnp.asarray(s)))
+    phi = np.pi / 4 * s.astype(np.float64)
+    # the result may differ from libm's by the rounding of φ = (π/4)·s in the dtype as well
+    ulp = lambda x: np.spacing(np.abs(x).astype(dtype)).astype(np.float64)  # noqa: E731
+    assert np.all(np.abs(c - np.cos(phi)) <= 3 * ulp(np.cos(phi)))
+    assert np.all(np.abs(si - np.sin(phi)) <= 3 * ulp(np.sin(phi)) + 2 * ulp(phi))
+    assert c[-1] < 1 and si[-1] > 0 and si[-4] == 0 and c[-4] == 1  # ends of the octant
+    assert np.all(c > 0) and np.all(np.sign(si) == np.sign(s))
+
+
+def test_the_concentric_disk_map_calls_no_sine_or_cosine():
+    """XLA:CPU evaluates ``sin``/``cos`` by a scalar libm call per element, which keeps the
+    whole fused kernel from vectorising: the 256² Cornell box MIS pass ran 1.07–1.10× and the
+    path pass 1.11× as fast per CPU-second with the polynomial (benchmarks/README.md)."""
+    from jaxrt.warp import square_to_cosine_hemisphere, square_to_uniform_disk_concentric
+
+    u = jnp.full((64, 2), 0.3, jnp.float32)
+    for f in (square_to_uniform_disk_concentric, square_to_cosine_hemisphere):
+        assert _sine_kernels(f, u) == 0
+        text = jax.jit(jax.vmap(f)).lower(u).compile(compiler_options()).as_text()
+        assert " cosine(" not in text
+
+
+def test_cos_sin_turn_is_within_three_ulps_and_exact_at_quarter_turns(x64):
+    """``(cos 2πt, sin 2πt)`` over the whole turn, the octant boundaries (where the quarter
+    turn ``q = round(4t)`` changes) included, against numpy's float64."""
+    from jaxrt.vecmath import cos_sin_turn
+
+    dtype = np.float64 if x64 else np.float32
+    t = np.concatenate([np.linspace(0, 1, 200_001), np.arange(9) / 8]).astype(dtype)
+    t = np.concatenate([t, np.nextafter(t, dtype(2)), np.nextafter(t, dtype(-1))])
+    t = t[(t >= 0) & (t <= 1)]
+    c, s = (np.asarray(v, np.float64) for v in jax.jit(cos_sin_turn)(jnp.asarray(t)))
+    phi = 2 * np.pi * t.astype(np.float64)
+    eps = np.finfo(dtype).eps
+    # absolute error: a few ulps of 1 (the larger of |cos|, |sin| is ≥ 0.7), plus the
+    # reference's own error, the rounding of φ = 2πt in float64 (~4·10⁻¹⁶ near a whole turn)
+    tol = 3 * eps + np.spacing(phi)
+    assert np.all(np.abs(c - np.cos(phi)) <= tol)
+    assert np.all(np.abs(s - np.sin(phi)) <= tol)
+    quarter = jax.jit(cos_sin_turn)(jnp.asarray(np.arange(5) / 4, dtype))
+    np.testing.assert_array_equal(np.asarray(quarter[0]), [1, 0, -1, 0, 1])
+    np.testing.assert_array_equal(np.asarray(quarter[1]), [0, 1, 0, -1, 0])
+
+
+def test_warps_of_an_azimuth_call_no_sine_or_cosine():
+    """Every warp that draws ``φ = 2π u`` (or the concentric map's octant angle) does it with
+    polynomials: XLA:CPU evaluates ``sin``/``cos`` by a scalar libm call per element, which
+    keeps the whole fused kernel from vectorising (256² Cornell box: MIS pass 1.07–1.10×,
+    path pass 1.11× per CPU-second with the polynomial; benchmarks/README.md)."""
+    from jaxrt.warp import REGISTRY
+
+    names = {"uniform_disk", "uniform_disk_concentric", "cosine_hemisphere", "uniform_sphere",
+             "uniform_hemisphere", "uniform_cone", "phong_lobe", "beckmann", "ggx",
+             "ggx_visible"}
+    specs = [w for w in REGISTRY if w.name in names]
+    assert {w.name for w in specs} == names
+    for w in specs:
+        args = [jnp.full((64, 2), 0.3, jnp.float32)]
+        args += [jnp.broadcast_to(jnp.asarray(p, jnp.float32), (64,) + np.shape(p))
+                 for p in w.params[0]]
+        text = jax.jit(jax.vmap(w.sample)).lower(*args).compile(compiler_options()).as_text()
+        assert " sine(" not in text and " cosine(" not in text, w.name
