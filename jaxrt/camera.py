@@ -24,7 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from jaxrt.vecmath import device_array
+from jaxrt.vecmath import computed_once, device_array
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,25 +125,33 @@ def look_at(eye, target, up, fov_deg, width: int, height: int, fov_axis: str = "
                   aspect=device_array(width / height, dt), width=width, height=height)
 
 
-def generate_ray(camera: Camera, pixel_xy: Array, u: Array) -> tuple[Array, Array]:
+def generate_ray(camera: Camera, pixel_xy: Array, u: Array,
+                 stored: bool = False) -> tuple[Array, Array]:
     """Primary ray through pixel ``(x, y) = (column, row)`` jittered by ``u`` (box filter).
 
     The film point is ``(x + u₀, y + u₁)`` in raster space; its camera-space direction is
     ``d = (a t (2 s_x − 1), t (1 − 2 s_y), −1)`` with ``s = (x + u₀, y + u₁)/(W, H)``,
     ``t = tan(fov_y/2)`` and ``a`` the aspect (row 0 at the top, hence ``1 − 2 s_y``).
-    Args: ``pixel_xy`` (2,) int32, ``u`` (2,) in [0, 1)². Returns ``(origin, direction)``:
-    the eye (3,) and the unit world direction (3,), in the dtype of ``u``.
+    Args: ``pixel_xy`` (2,) int32, ``u`` (2,) in [0, 1)²; ``stored`` (static): keep the film
+    point and the normalisation as stored scalars (:func:`~jaxrt.vecmath.computed_once`), for
+    a caller whose (3,) direction feeds a select: XLA:CPU computes each element of a (…, 3)
+    output on its own, so the path pass's regeneration select computed the sampler's hash
+    and the film point three times per lane and step (8 % of its kernel time; stored, the
+    pass ran 1.05–1.09× per CPU-second, where the MIS pass's camera ray ran 0.96× stored).
+    Returns ``(origin, direction)``: the eye (3,) and the unit world direction (3,), in the
+    dtype of ``u``.
     """
     dt = u.dtype
     sx = (pixel_xy[0].astype(dt) + u[0]) / jnp.asarray(camera.width, dt)
     sy = (pixel_xy[1].astype(dt) + u[1]) / jnp.asarray(camera.height, dt)
     t = camera.tan_half_fov.astype(dt)
-    cx, cy = camera.aspect.astype(dt) * t * (2 * sx - 1), t * (1 - 2 * sy)
+    keep = computed_once if stored else (lambda x: x)
+    cx, cy = keep(camera.aspect.astype(dt) * t * (2 * sx - 1)), keep(t * (1 - 2 * sy))
     # camera → world: cx·right + cy·up − back, per component (under vmap each is one
     # contiguous vector; a (3,) @ (3, 3) product was a dot kernel and a stack of its own)
     f = camera.frame.astype(dt)
     d = [cx * f[0, k] + cy * f[1, k] - f[2, k] for k in range(3)]
-    inv = 1 / jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])  # ≥ 1: never zero
+    inv = keep(1 / jnp.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))  # ≥ 1: never zero
     return camera.eye.astype(dt), jnp.stack([d[0] * inv, d[1] * inv, d[2] * inv])
 
 

@@ -246,7 +246,8 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
         # (lanes past their last sample, or padding, step on without folding anything)
         acc = _where(ended & (k >= 0) & (k < count), fold(acc, st.radiance), acc)
         k = jnp.where(ended, k + 1, k)
-        o, d = camera_ray(scene, pixel, stream(pixel, k))
+        # stored scalars: the direction feeds the select below (camera.generate_ray)
+        o, d = camera_ray(scene, pixel, stream(pixel, k), stored=True)
         seg = _where(ended, Segment(o, d, o, jnp.zeros((), dtype), jnp.bool_(True)), seg)
         st = _where(ended, PathState(st.x, jnp.ones(3, dtype), jnp.zeros(3, dtype),
                                      jnp.int32(0), k < count), st)

@@ -203,7 +203,9 @@ def shading_point(scene: Scene, hit: SurfaceHit, wo: Array) -> ShadingPoint:
     return ShadingPoint(hit, n, to_local(wo, n), material_at(scene, hit))
 
 
-def camera_ray(scene: Scene, pixel: Array, s: Stream) -> tuple[Array, Array]:
-    """The camera ray ``(o, d)`` (d unit) through flat pixel ``pixel``, jittered by dims 0–1."""
+def camera_ray(scene: Scene, pixel: Array, s: Stream,
+               stored: bool = False) -> tuple[Array, Array]:
+    """The camera ray ``(o, d)`` (d unit) through flat pixel ``pixel``, jittered by dims 0–1
+    (``stored``: see :func:`~jaxrt.camera.generate_ray`)."""
     xy = jnp.stack([pixel % scene.width, pixel // scene.width]).astype(jnp.int32)
-    return generate_ray(scene.camera, xy, s.u2(0))
+    return generate_ray(scene.camera, xy, s.u2(0), stored)
