@@ -9,7 +9,9 @@ excludes: the δt bound and the light end's offset) or along its plane (parallel
 So shadow rays need not test it: on the Cornell box 10 of 32 triangles (the five walls),
 and the any-hit loop over the other 22 (padded to 24) made the 256² MIS pass 1.016–1.17×
 and the path pass 1.056–1.067× as fast per CPU-second (paired; images bit-identical;
-benchmarks/README.md, "shadow rays skip what cannot block them").
+benchmarks/README.md, "shadow rays skip what cannot block them"). Nor need they test a
+triangle in the plane of every point the lights sample (:func:`coplanar_faces`: the
+Cornell box's light quad), which the segment meets only at its light end: 20 tests left.
 
 Only which triangles are tested changes; every test is the full watertight one. Lights that
 sample points outside the scene (directional lights, environments) make every triangle a
@@ -66,6 +68,26 @@ def one_sided_faces(triangles: np.ndarray, points: np.ndarray | None = None,
     return (norm > 0) & (below | above)
 
 
+def coplanar_faces(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """(F,) bool: triangles whose plane holds every one of ``points`` (P, 3), P ≥ 1.
+
+    A shadow ray ends at a point a light sampled. When every such point lies in one plane
+    (a quad light, coplanar triangle lights, point lights on it), a triangle in that plane
+    meets the segment only at its light end, which the any-hit test excludes, or along the
+    plane (parallel: never a hit); on the Cornell box, the light's own two triangles. Same
+    float64 tolerance as :func:`one_sided_faces`.
+    """
+    tri = np.asarray(triangles, np.float64)
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1)
+    extent = max(np.max(np.abs(tri)), np.max(np.abs(pts), initial=0.0),
+                 np.finfo(np.float64).tiny)
+    tol = 64 * np.finfo(np.float64).eps * norm * extent
+    s = n @ pts.T - np.sum(n * tri[:, 0], axis=1)[:, None]  # (F, P) signed distances × |n|
+    return (norm > 0) & (pts.shape[0] > 0) & np.all(np.abs(s) <= tol[:, None], axis=1)
+
+
 def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
     """(K,) int32 indices of the triangles a shadow ray must test, or None for all of them.
 
@@ -81,7 +103,8 @@ def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
             or s.count("environment") or np.shape(triangles)[0] > MAX_TRIANGLES):
         return None
     arrays = [triangles] + [getattr(lights.table(k), f) for k, f in (
-        ("point", "position"), ("spot", "position"), ("sphere", "center"), ("sphere", "radius"))
+        ("point", "position"), ("spot", "position"), ("sphere", "center"), ("sphere", "radius"),
+        ("triangle", "prim"))
         if s.count(k)]
     if any(isinstance(a, jax.core.Tracer) for a in arrays):
         return None
@@ -92,8 +115,14 @@ def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
         sph = lights.table("sphere")
         balls.append(np.concatenate([np.asarray(sph.center, np.float64).reshape(-1, 3),
                                      np.asarray(sph.radius, np.float64).reshape(-1, 1)], 1))
-    skip = one_sided_faces(np.asarray(triangles), np.concatenate(points or [np.zeros((0, 3))]),
+    points = np.concatenate(points or [np.zeros((0, 3))])
+    skip = one_sided_faces(np.asarray(triangles), points,
                            np.concatenate(balls or [np.zeros((0, 4))]))
+    if not s.count("sphere"):  # every light end in one plane?
+        # triangle lights by the emitters' own rows of `triangles`
+        prims = np.asarray(lights.table("triangle").prim) if s.count("triangle") else []
+        ends = np.asarray(triangles, np.float64)[prims].reshape(-1, 3)
+        skip |= coplanar_faces(np.asarray(triangles), np.concatenate([ends, points]))
     if not np.any(skip):
         return None
     return device_array(np.flatnonzero(~skip).astype(np.int32))

@@ -231,16 +231,17 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     # primitive indices of hits always refer to this (mesh) order, whatever the accelerator
     geometry = build_geometry(triangles, accel=accel)
     dt = jax.dtypes.canonicalize_dtype(jnp.float64)
+    stored = device_array(triangles, dt)  # what the kernels read; occluders are found in it
     return Scene(
         geometry=geometry,
-        triangles=device_array(triangles, dt),
+        triangles=stored,
         prim_material=device_array(prim_material),
         prim_light=device_array(prim_light),
         materials=table,
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
-        occluders=shadow_occluders(geometry, triangles, light_table),
+        occluders=shadow_occluders(geometry, stored, light_table),
     )
 
 

@@ -43,12 +43,34 @@ def test_the_walls_of_a_room_are_one_sided_and_what_stands_inside_is_not():
     assert np.array_equal(one[12:], bottom)
 
 
-def test_the_cornell_box_skips_its_five_walls():
+def test_the_cornell_box_skips_its_five_walls_and_its_light():
     scene = cornell_box(16, 16)
     kept = np.asarray(scene.occluders)
     walls = 10  # floor, ceiling, back, green and red walls: two triangles each, first
-    assert kept.tolist() == list(range(walls, scene.num_triangles))
-    assert "shadow rays test 22 of them" in scene.summary()
+    light = 2  # the light quad, last: every shadow ray ends in its plane
+    assert kept.tolist() == list(range(walls, scene.num_triangles - light))
+    assert "shadow rays test 20 of them" in scene.summary()
+
+
+@pytest.mark.parametrize("light, kept", [
+    ([], 10),  # the quad alone: its two triangles hold every light end
+    ([lt.point_light([0.5, 0.99, 0.5], [1.0] * 3)], 10),  # a point light in the quad's plane
+    ([lt.point_light([0.5, 0.98, 0.5], [1.0] * 3)], 12),  # 0.01 below it: the quad can block
+    ([lt.sphere_light([0.5, 0.5, 0.5], 0.05, [1.0] * 3)], 12),  # a ball has no plane
+])
+def test_triangles_in_the_plane_of_every_light_end_are_skipped(light, kept):
+    """12 walls and the block's bottom are skipped in every case; the light quad's two
+    triangles too when every point a light samples lies in their plane."""
+    from jaxrt.occluders import coplanar_faces
+
+    occluders = np.asarray(_room(light).occluders)
+    assert occluders.size == kept
+    assert ({24, 25} <= set(occluders.tolist())) == (kept == 12)
+    tri = np.array([[[0, 1, 0], [1, 1, 0], [0, 1, 1]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float)
+    assert coplanar_faces(tri, np.array([[5.0, 1.0, -3.0], [0.2, 1.0, 0.7]])).tolist() == [
+        True, False]
+    assert coplanar_faces(tri, np.array([[5.0, 1.0 + 1e-9, -3.0]])).tolist() == [False, False]
+    assert coplanar_faces(tri, np.zeros((0, 3))).tolist() == [False, False]
 
 
 @pytest.mark.parametrize("light, kept", [
