@@ -46,11 +46,13 @@ def computed_once(x: Array) -> Array:
     of a (…, 3) output: a direction used by three kernels, or stacked into a (3,) vector, has
     its whole chain of operations (hash, warp, ``sin``/``cos``, frame change) recomputed in
     each. A reduction's result is stored, not fused into its consumers, so this returns
-    ``max(x, −∞)`` as a max-reduction over the pair ``(x, −∞)``: the chain is computed once,
+    ``(−0 + x) + −0`` as a sum-reduction over the pair ``(x, −0)``: the chain is computed once,
     into that reduction (per element of ``x``: a (3,) vector's components still each compute
-    the scalars they share), and the consumers read it. Exact for every ``x`` (NaN, ±0, ±∞
-    included) but subnormals, which XLA:CPU flushes to zero in this as in any arithmetic (so
-    never in the result of one); the tangent passes through unchanged. Shape of ``x``.
+    the scalars they share), and the consumers read it. Adding −0 is exact for every ``x``
+    (NaN, ±0, ±∞ included; subnormals as XLA:CPU's flush-to-zero leaves them); the tangent
+    passes through unchanged. Shape of ``x``. (It was a max-reduction with −∞: under the fast
+    min/max jaxrt compiles with (:data:`jaxrt.estimators.COMPILER_OPTIONS`) that turned NaN into
+    −∞, and NaN-propagating it cost 2–3 % of a pass.)
 
     Use it where a costly value has several consumers in the hot path: the BSDF-sampled
     direction (spawn offset, traversal, the next shading frame, a path's regeneration select)
@@ -58,8 +60,9 @@ def computed_once(x: Array) -> Array:
     pixel's four sums): 256² Cornell box path pass 1.04–1.12× and 1.01–1.10× per CPU-second
     for the two (benchmarks/README.md).
     """
-    pair = jnp.stack([x, jnp.full_like(x, -jnp.inf)])
-    return jax.lax.reduce(pair, jnp.asarray(-jnp.inf, pair.dtype), jax.lax.max, (0,))
+    pair = jnp.stack([x, jnp.full_like(x, -0.0)])
+    # a lambda, not lax.add: JAX would take (add, −0) for the monoid reduce_sum, whose zero is +0
+    return jax.lax.reduce(pair, jnp.asarray(-0.0, pair.dtype), lambda a, b: a + b, (0,))
 
 
 @computed_once.defjvp
