@@ -135,7 +135,7 @@ def reflect(w: Array, n: Array) -> Array:
     return 2 * dot(w, n) * n - w
 
 
-def _taylor(coefficients: list[int], x2: Array) -> Array:
+def _taylor(coefficients: list[float], x2: Array) -> Array:
     """``Σ_k x2^k / c_k`` by Horner's rule (``c_k`` the signed factorials)."""
     acc = jnp.asarray(1 / coefficients[-1], x2.dtype)
     for c in coefficients[-2::-1]:
@@ -151,7 +151,7 @@ def cos_sin_octant(s: Array) -> tuple[Array, Array]:
     float64 (< 10⁻¹⁸); the result is within a few ulps of the true value. Vector
     arithmetic only: XLA:CPU calls the scalar ``sincosf`` of libm for ``jnp.cos``/``jnp.sin``
     once per element, 4.7 % of the CPU time of the 256² Cornell box MIS pass (perf) for the
-    concentric disk map alone.
+    concentric disk map alone. Elementwise: ``s`` of any shape, two arrays of that shape.
     """
     phi = jnp.asarray(np.pi / 4, s.dtype) * s
     x2 = phi * phi
@@ -166,7 +166,8 @@ def cos_sin_turn(t: Array) -> tuple[Array, Array]:
 
     ``q = round(4t)`` quarter turns and ``s = 8t − 2q ∈ [−1, 1]`` (exact: a power-of-two
     scaling and a Sterbenz subtraction), so ``2πt = qπ/2 + πs/4`` and the result is the
-    octant's pair rotated by ``q`` quarter turns: exactly as accurate.
+    octant's pair rotated by ``q`` quarter turns: exactly as accurate. Elementwise: ``t`` of
+    any shape, two arrays of that shape.
     """
     q = jnp.round(4 * t)
     c, s = cos_sin_octant(8 * t - 2 * q)
@@ -177,7 +178,8 @@ def cos_sin_turn(t: Array) -> tuple[Array, Array]:
 
 def spherical_direction_turn(sin_theta: Array, cos_theta: Array, t: Array) -> Array:
     """:func:`spherical_direction` with ``φ = 2π t`` (``t ∈ [0, 1]``), without ``sin``/``cos``
-    (:func:`cos_sin_turn`): the form every warp that draws ``φ = 2π u`` uses."""
+    (:func:`cos_sin_turn`): the form every warp that draws ``φ = 2π u`` uses. Scalars in,
+    unit (3,) out when ``sin²θ + cos²θ = 1``."""
     c, s = cos_sin_turn(t)
     return jnp.stack([sin_theta * c, sin_theta * s, cos_theta])
 
