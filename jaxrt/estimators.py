@@ -99,9 +99,9 @@ from jaxrt.terms import (  # re-exported: the terms the estimators are built of
 #:   ``vecmath.dot`` under ``vmap``) took 298 µs for N = 16 384 where XLA's own loop takes 32;
 #:   without them MIS ran 1.28× and the path tracer 1.32× faster per CPU-second, and the MIS
 #:   pass compiled in 2.1 instead of 3.0 s (paired, one process, load 1.2).
-#: - ``xla_cpu_enable_fast_min_max=True``: ``min``/``max`` as one vector instruction, as C's
+#: - ``xla_cpu_enable_fast_min_max=True``: ``min``/``max`` as a compare and a select, as C's
 #:   ``a < b ? b : a`` (pbrt's and Mitsuba's ``std::max``), not IEEE's NaN-propagating
-#:   ``maximum`` (a compare, an unordered test and two blends): the watertight test takes
+#:   ``llvm.maximum`` (several x86 instructions around ``vmaxps``): the watertight test takes
 #:   eight maxima per triangle. MIS 1.09–1.10× and, with ``computed_once`` a sum instead of a
 #:   max-reduction, 1.12×, path 1.06× per CPU-second, images bit-identical (paired, one
 #:   process, 16 and 10 rounds, load 1.0–1.5). The price: a NaN met by a min or max inside a
