@@ -388,7 +388,8 @@ def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed
 def camera_hit(scene: Scene, pixel: Array, s: Stream) -> tuple[SurfaceHit, Array]:
     """The first half of :func:`camera_sample`: the camera ray's first hit and ``wo = −d``."""
     o, d = camera_ray(scene, pixel, s)
-    return intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype)), -d
+    # every camera ray starts at the eye: triangles are tested by their planes through it
+    return intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype), shared_origin=True), -d
 
 
 def camera_radiance(scene: Scene, est: Estimator, hit: SurfaceHit, wo: Array,

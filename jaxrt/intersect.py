@@ -50,6 +50,10 @@ unless the loop was software-pipelined; ``optimization_barrier`` is removed by X
 incoherent rays: 18.3 → 28.7 Mrays/s (the cost of the test alone, without ``prim``, is
 29.8); the 256² MIS render 1.12× per CPU-second, paired, images bit-identical.
 
+Camera rays, which share their origin, have a cheaper query of their own on brute-force
+scenes (:mod:`jaxrt.shared_origin`: the triangles' edge planes through the eye, formed once
+per batch); it shares :func:`closest_loop` and :func:`finish_hit` with the loop here.
+
 Four triangles per loop iteration (``unroll=4``): each iteration also runs a few tiny kernels
 (the counter's copy and increment, the condition), so fewer iterations pay: the 256² MIS render
 3.83 → 4.14 Msamples per CPU-second (1.08×, one process, 12 interleaved rounds, load 1.1–1.3;
@@ -354,7 +358,7 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
 MAX_BRUTE_FORCE = 2**24
 
 #: Triangles per brute-force loop iteration (``fori_loop`` unroll factor; see the module notes).
-_UNROLL = 4
+UNROLL = 4
 
 
 class TriangleSet(NamedTuple):
@@ -383,30 +387,23 @@ class TriangleSet(NamedTuple):
         frame = ray_frame(origin, direction)
         dtype = frame.sz.dtype
         inf = jnp.asarray(jnp.inf, dtype)
-        verts, valid = self._loop_tables(dtype)
+        verts, valid = self.loop_tables(dtype)
         t_max = jnp.asarray(t_max, dtype)
 
-        def body(i, best):
-            # best = t + i·prim, ONE complex carry: the loop body is one kernel (see the
-            # module notes). Strictly closer, so ties keep the lowest index; the test itself
-            # rejects t > t_max, so the carry starts at (inf, −1).
+        def t_of(i):
             v = verts[i]
-            ti = jnp.where(valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t_max), inf)
-            t = jnp.real(best)
-            return lax.complex(jnp.minimum(ti, t),
-                               jnp.where(ti < t, i.astype(dtype), jnp.imag(best)))
+            return jnp.where(valid[i], intersect_triangle_t(frame, v[0], v[1], v[2], t_max), inf)
 
         # the carry starts as a value of the ray (inf wherever it is valid or not), so that
         # under vmap it is batched from the start and JAX batches the body once, not twice
-        start = lax.complex(jnp.where(frame.valid, inf, inf), jnp.asarray(-1, dtype))
-        best = lax.fori_loop(0, verts.shape[0], body, start, unroll=_UNROLL)
-        return _finish_hit(self, frame, jnp.real(best), jnp.imag(best).astype(jnp.int32))
+        t, prim = closest_loop(t_of, verts.shape[0], jnp.where(frame.valid, inf, inf))
+        return finish_hit(self, frame, t, prim)
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
         """Whether one ray hits any triangle with ``0 < t ≤ t_max``; see :func:`any_hit`."""
         frame = ray_frame(origin, direction)
         dtype = frame.sz.dtype
-        verts, valid = self._loop_tables(dtype)
+        verts, valid = self.loop_tables(dtype)
         t_max = jnp.asarray(t_max, dtype)
 
         def body(i, found):
@@ -414,9 +411,10 @@ class TriangleSet(NamedTuple):
             return found | (valid[i] & intersect_triangle_hit(frame, v[0], v[1], v[2], t_max))
 
         # a value of the ray (False), batched under vmap from the start, as in closest_hit
-        return lax.fori_loop(0, verts.shape[0], body, frame.valid & False, unroll=_UNROLL)
+        return lax.fori_loop(0, verts.shape[0], body, frame.valid & False,
+                             unroll=loop_unroll(verts.shape[0]))
 
-    def _loop_tables(self, dtype) -> tuple[Array, Array]:
+    def loop_tables(self, dtype) -> tuple[Array, Array]:
         """Sorted vertices (F', 3, 3) and validity (F',) as the loops read them, padded with
         never-hit triangles to a multiple of the unroll factor ``F' = 4 ⌈F/4⌉``.
 
@@ -425,14 +423,46 @@ class TriangleSet(NamedTuple):
         32, over the same 22 padded to 24 1.134× (paired, one process, 14 rounds).
         """
         verts, valid = self.sorted_vertices.astype(dtype), self.valid
-        pad = -verts.shape[0] % _UNROLL
+        pad = -verts.shape[0] % UNROLL
         if pad:
             verts = jnp.concatenate([verts, jnp.zeros((pad, 3, 3), dtype)])
             valid = jnp.concatenate([valid, jnp.zeros(pad, valid.dtype)])
         return verts, valid
 
 
-def _finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
+def closest_loop(t_of, count: int, start: Array) -> tuple[Array, Array]:
+    """Smallest ``t_of(i)`` over ``i < count`` and the first index reaching it (−1: none < start).
+
+    The brute-force closest-hit loop: ``t_of(i)`` is triangle i's hit distance (inf on a
+    miss, which already rejects ``t > t_max``). The carry is ONE complex number
+    ``t + i·prim`` (see the module notes), ``UNROLL`` tests per iteration; strictly closer
+    wins, so ties keep the lowest index. ``start`` is the ray's ``inf``, a value of the ray
+    so that under ``vmap`` the carry is batched from the start and the body batched once.
+    """
+    dtype = start.dtype
+
+    def body(i, best):
+        ti, t = t_of(i), jnp.real(best)
+        return lax.complex(jnp.minimum(ti, t), jnp.where(ti < t, i.astype(dtype), jnp.imag(best)))
+
+    best = lax.fori_loop(0, count, body, lax.complex(start, jnp.asarray(-1, dtype)),
+                         unroll=loop_unroll(count))
+    return jnp.real(best), jnp.imag(best).astype(jnp.int32)
+
+
+def loop_unroll(count: int) -> int:
+    """``UNROLL``, or 1 for a loop of at most ``UNROLL`` iterations, so that it stays a loop.
+
+    A loop of one (unrolled) iteration is inlined by XLA, and its tests were then fused into
+    every consumer of its result, per element: the Hit's twelve gathers, (…, 3) selects. The
+    MIS pass ran 0.27× as fast with a direct BSDF ray's two emitters (padded to four) tested
+    that way; stored instead (:func:`~jaxrt.vecmath.computed_once`), the tests ran in a scalar
+    reduction kernel, 15 % of the pass.
+    """
+    return UNROLL if count > UNROLL else 1
+
+
+def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
     """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
     k = jnp.maximum(prim, 0)
     # one gather per scalar component from a (12, F) table: under vmap each is a contiguous

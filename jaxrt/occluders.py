@@ -12,6 +12,8 @@ and the path pass 1.056–1.067× as fast per CPU-second (paired; images bit-ide
 benchmarks/README.md, "shadow rays skip what cannot block them"). Nor need they test a
 triangle in the plane of every point the lights sample (:func:`coplanar_faces`: the
 Cornell box's light quad), which the segment meets only at its light end: 20 tests left.
+Those 20 are the two blocks, which :func:`shadow_blockers` then hands to :mod:`jaxrt.convex`:
+a closed convex body is tested by its face planes (five per block), not by its triangles.
 
 Only which triangles are tested changes; every test is the full watertight one. Lights that
 sample points outside the scene (directional lights, environments) make every triangle a
@@ -28,6 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from jaxrt.convex import ConvexBodies, convex_bodies
 from jaxrt.intersect import TriangleSet
 from jaxrt.vecmath import device_array
 
@@ -91,6 +94,16 @@ def coplanar_faces(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
 def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
     """(K,) int32 indices of the triangles a shadow ray must test, or None for all of them.
 
+    A device array (as :class:`jaxrt.scene.Scene` holds it); :func:`_occluder_indices` is
+    the host computation.
+    """
+    found = _occluder_indices(geometry, triangles, lights)
+    return None if found is None else device_array(found)
+
+
+def _occluder_indices(geometry: Any, triangles: Any, lights: Any) -> np.ndarray | None:
+    """The host part of :func:`shadow_occluders` (numpy indices or None).
+
     ``lights`` is the scene's light table (:func:`jaxrt.lights.light_table`). Brute-force
     scenes of at most :data:`MAX_TRIANGLES` only (a BVH already skips what a ray cannot
     reach). None when a light samples points outside the scene (directional, environment),
@@ -108,16 +121,8 @@ def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
         if s.count(k)]
     if any(isinstance(a, jax.core.Tracer) for a in arrays):
         return None
-    points = [np.asarray(lights.table(k).position, np.float64).reshape(-1, 3)
-              for k in ("point", "spot") if s.count(k)]
-    balls = []
-    if s.count("sphere"):  # triangle lights are scene triangles: among the vertices already
-        sph = lights.table("sphere")
-        balls.append(np.concatenate([np.asarray(sph.center, np.float64).reshape(-1, 3),
-                                     np.asarray(sph.radius, np.float64).reshape(-1, 1)], 1))
-    points = np.concatenate(points or [np.zeros((0, 3))])
-    skip = one_sided_faces(np.asarray(triangles), points,
-                           np.concatenate(balls or [np.zeros((0, 4))]))
+    points, balls = _light_points(lights)
+    skip = one_sided_faces(np.asarray(triangles), points, balls)
     if not s.count("sphere"):  # every light end in one plane?
         # triangle lights by the emitters' own rows of `triangles`
         prims = np.asarray(lights.table("triangle").prim) if s.count("triangle") else []
@@ -125,4 +130,46 @@ def shadow_occluders(geometry: Any, triangles: Any, lights: Any):
         skip |= coplanar_faces(np.asarray(triangles), np.concatenate([ends, points]))
     if not np.any(skip):
         return None
-    return device_array(np.flatnonzero(~skip).astype(np.int32))
+    return np.flatnonzero(~skip).astype(np.int32)
+
+
+def _light_points(lights: Any) -> tuple[np.ndarray, np.ndarray]:
+    """(Q, 3) point and spot light positions and (S, 4) sphere lights ``(centre, radius)``;
+    triangle lights are scene triangles (among the vertices already)."""
+    s = lights.structure
+    points = [np.asarray(lights.table(k).position, np.float64).reshape(-1, 3)
+              for k in ("point", "spot") if s.count(k)]
+    balls = []
+    if s.count("sphere"):
+        sph = lights.table("sphere")
+        balls.append(np.concatenate([np.asarray(sph.center, np.float64).reshape(-1, 3),
+                                     np.asarray(sph.radius, np.float64).reshape(-1, 1)], 1))
+    return (np.concatenate(points or [np.zeros((0, 3))]),
+            np.concatenate(balls or [np.zeros((0, 4))]))
+
+
+def shadow_blockers(geometry: Any, triangles: Any, lights: Any) -> tuple[Any, Any]:
+    """``(occluders, convex)``: what a shadow ray tests, as triangles and as convex bodies.
+
+    :func:`shadow_occluders`, then the convex bodies among those triangles
+    (:func:`jaxrt.convex.convex_bodies`), which are tested by their face planes and so leave
+    the list: ``occluders`` (K,) int32 indices of the triangles still tested one by one (None:
+    all of them), ``convex`` a :class:`~jaxrt.convex.ConvexBodies` or None (no body; always
+    None when ``occluders`` is None).
+    """
+    occluders = _occluder_indices(geometry, triangles, lights)
+    if occluders is None:
+        return None, None
+    tri = np.asarray(triangles)
+    emissive = np.zeros(len(tri), bool)
+    if lights.structure.count("triangle"):
+        emissive[np.asarray(lights.table("triangle").prim)] = True
+    points, balls = _light_points(lights)
+    planes, origins, members, kept = convex_bodies(tri, np.asarray(occluders), emissive,
+                                                   points, balls)
+    if not len(planes):
+        return device_array(occluders), None
+    bodies = ConvexBodies(device_array(planes.astype(tri.dtype)),
+                          device_array(origins.astype(tri.dtype)),
+                          device_array(members.astype(np.int32)))
+    return device_array(kept.astype(np.int32)), bodies

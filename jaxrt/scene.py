@@ -42,9 +42,12 @@ from jax import Array
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
+from jaxrt.convex import convex_any_hit
 from jaxrt.derivatives import nondifferentiable
-from jaxrt.intersect import any_hit, closest_hit, gamma
-from jaxrt.occluders import shadow_occluders
+from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma
+from jaxrt.occluders import shadow_blockers
+from jaxrt.shared_origin import closest_hit_from_origin
+from jaxrt.spawn import SHADOW_EPSILON
 from jaxrt.vecmath import device_array, dot, normalize
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
@@ -115,8 +118,10 @@ class Scene:
     lights: the light table (:mod:`jaxrt.lights`).
     camera: the camera (:mod:`jaxrt.camera`); its width and height are static.
     material_kinds: static sorted tuple of the BSDF kinds present.
-    occluders: the triangles a shadow ray tests (:func:`jaxrt.occluders.shadow_occluders`),
-        or None for all of ``geometry``.
+    occluders: the triangles a shadow ray tests one by one
+        (:func:`jaxrt.occluders.shadow_blockers`), or None for all of ``geometry``.
+    convex: the convex bodies a shadow ray tests by their face planes
+        (:class:`jaxrt.convex.ConvexBodies`, whose triangles ``occluders`` leaves out), or None.
     """
 
     geometry: Any
@@ -128,6 +133,7 @@ class Scene:
     camera: Any
     material_kinds: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     occluders: Any = None
+    convex: Any = None
 
     @property
     def width(self) -> int:
@@ -144,15 +150,16 @@ class Scene:
     def replace(self, **changes) -> Scene:
         """A copy with some fields replaced (e.g. a new camera or new materials).
 
-        ``occluders`` belong to the scene's triangles and lights: a copy with new
-        ``geometry``, ``triangles`` or ``lights`` finds them again
-        (:func:`jaxrt.occluders.shadow_occluders`; None, every triangle tested, when the new
-        arrays are traced) unless ``occluders`` is given too.
+        ``occluders`` and ``convex`` belong to the scene's triangles and lights: a copy with
+        new ``geometry``, ``triangles`` or ``lights`` finds them again
+        (:func:`jaxrt.occluders.shadow_blockers`; None, every triangle tested, when the new
+        arrays are traced) unless ``occluders`` is given too (``convex`` then stays unless
+        given: a body tested as planes and as triangles is still right).
         """
         new = dataclasses.replace(self, **changes)
         if "occluders" not in changes and {"geometry", "triangles", "lights"} & set(changes):
-            new = dataclasses.replace(new, occluders=shadow_occluders(
-                new.geometry, new.triangles, new.lights))
+            occluders, convex = shadow_blockers(new.geometry, new.triangles, new.lights)
+            new = dataclasses.replace(new, occluders=occluders, convex=convex)
         return new
 
     def summary(self) -> str:
@@ -160,6 +167,9 @@ class Scene:
         kinds = ", ".join(mt.KIND_NAMES[k] for k in self.material_kinds)
         shadow = ("" if self.occluders is None else
                   f", shadow rays test {self.occluders.shape[0]} of them")
+        if self.convex is not None:
+            planes = int(np.sum(np.any(np.asarray(self.convex.planes)[..., :3] != 0, -1)))
+            shadow += f" and {self.convex.count} convex bodies ({planes} planes)"
         return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
                 f"({type(self.geometry).__name__}){shadow}, {self.materials.kind.shape[0]} "
                 f"materials [{kinds}], lights: {describe_lights(self.lights)}")
@@ -241,7 +251,8 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
-        occluders=shadow_occluders(geometry, stored, light_table),
+        **dict(zip(("occluders", "convex"), shadow_blockers(geometry, stored, light_table),
+                   strict=True)),
     )
 
 
@@ -295,12 +306,47 @@ class SurfaceHit(NamedTuple):
     light: Array
 
 
-def intersect(scene: Scene, o: Array, d: Array, t_max: Array) -> SurfaceHit:
+def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: bool = False,
+              emission_only: bool = False) -> SurfaceHit:
     """Closest hit of the ray ``o + t d``, ``0 < t < t_max``, against triangles and spheres.
 
     On a miss, ``light`` is the environment's global index (−1 without an environment).
+    Two static options specialise the query without changing what the caller uses of it:
+
+    - ``shared_origin``: every ray of the batch starts at ``o`` (a pinhole camera's eye;
+      ``o`` unbatched under ``vmap``), so brute-force triangles are tested by their edge
+      planes through it (:mod:`jaxrt.shared_origin`); a BVH ignores it.
+    - ``emission_only``: the caller (a direct estimator's BSDF ray from a surface point)
+      uses only the emitter the ray reaches: the emitted radiance, the light and its point.
+      Then only the triangles that can block a shadow ray (``scene.occluders``) and the
+      emissive ones are tested, and the convex bodies (``scene.convex``) between the origin
+      and the emitter found (stopping short of it by the shadow rays' relative margin). Exact
+      but for that margin: a left-out face is a hull face, beyond whose plane
+      nothing lies, or lies in the plane of every light end, which the ray crosses once;
+      either way no emitter lies past it (:mod:`jaxrt.occluders`), so the ray that meets
+      it first reaches no emitter (``light`` −1; ``p``, ``prim`` and ``t`` may then be of
+      another non-emissive triangle, or a miss). None of them: every triangle is tested.
     """
-    hit = closest_hit(scene.geometry, o, d, t_max)
+    geometry, prims = scene.geometry, None
+    if emission_only and scene.occluders is not None:
+        parts = [scene.occluders.astype(jnp.int32)]
+        if scene.lights.structure.count("triangle"):
+            parts.append(scene.lights.table("triangle").prim.astype(jnp.int32))
+        # an emissive triangle among the occluders is tested twice (ties keep the first)
+        prims = jnp.concatenate(parts)
+        geometry = jax.tree.map(lambda a: a[prims], geometry)
+    if shared_origin and isinstance(geometry, TriangleSet):
+        hit = closest_hit_from_origin(geometry, o, d, t_max)
+    else:
+        hit = closest_hit(geometry, o, d, t_max)
+    if prims is not None:  # back to the scene's triangle indices
+        prim = jnp.where(hit.prim >= 0, prims[jnp.maximum(hit.prim, 0)], -1)
+        if scene.convex is not None:
+            # a convex body before the emitter: the ray reaches none (stopping short of the
+            # emitter by the shadow rays' relative margin, as spawn_ray_to does)
+            short = hit.t * (1 - jnp.asarray(SHADOW_EPSILON, o.dtype))
+            prim = jnp.where(convex_any_hit(scene.convex, o, d, short), -1, prim)
+        hit = hit._replace(prim=prim)
     tri_hit = hit.prim >= 0
     prim = jnp.maximum(hit.prim, 0)
     # the winner's point, error bound and normal come with the hit (no (3, 3) gather here);
@@ -346,6 +392,8 @@ def unoccluded(scene: Scene, o: Array, d: Array, t_max: Array) -> Array:
         blocked = any_hit(jax.tree.map(lambda a: a[scene.occluders], geometry), o, d, t_max)
     else:  # nothing in the scene can block a shadow ray
         blocked = jnp.zeros(jnp.shape(t_max), bool)
+    if scene.convex is not None:
+        blocked = blocked | convex_any_hit(scene.convex, o, d, t_max)
     if scene.lights.structure.count("sphere"):
         ts, _ = lt.intersect_spheres(scene.lights, o, d, t_max)
         blocked = blocked | (ts < t_max)

@@ -99,23 +99,28 @@ class Arrival(NamedTuple):
     pdf_light: Array  # () solid-angle pdf of d under light sampling at p (detached)
 
 
-def trace_from(scene: Scene, p: Array, o: Array, d: Array) -> Arrival:
-    """Trace ``o + t d`` (``o``: ``p`` offset off its surface, ``d`` unit) to its emitter."""
-    h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype))
+def trace_from(scene: Scene, p: Array, o: Array, d: Array,
+               emission_only: bool = False) -> Arrival:
+    """Trace ``o + t d`` (``o``: ``p`` offset off its surface, ``d`` unit) to its emitter.
+
+    ``emission_only`` (static): the caller uses only ``le`` and ``pdf_light`` (a direct
+    estimator), not the surface hit: fewer triangles are tested
+    (:func:`jaxrt.scene.intersect`)."""
+    h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype), emission_only=emission_only)
     pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, p, d, h.light, h.p))
     return Arrival(emitted(scene, h, -d), h, pdf_light)
 
 
-def _trace_emission(scene: Scene, x: ShadingPoint, wi: Array) -> tuple[Array, SurfaceHit]:
+def _trace_emission(scene: Scene, x: ShadingPoint, wi: Array) -> Array:
     """``L_e(r(x, wi), −wi)``: the emitted radiance found along wi (environment on a miss)."""
-    a = trace_from(scene, x.hit.p, *spawn_ray(x.hit.p, x.n, wi, x.hit.p_error))
-    return a.le, a.hit
+    o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
+    return trace_from(scene, x.hit.p, o, d, emission_only=True).le
 
 
 def _direction_sample(scene: Scene, x: ShadingPoint, wi_local: Array, pdf: Array) -> Array:
     """``f · L_e · cos θi / p`` for a direction sampled in the hemispherical form."""
     wi = to_world(wi_local, x.n)
-    le, _ = _trace_emission(scene, x, wi)
+    le = _trace_emission(scene, x, wi)
     f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
     return _div(f * le * jnp.abs(wi_local[2]), pdf)
 
@@ -192,7 +197,7 @@ def bsdf_direction(scene: Scene, x: ShadingPoint, u: Array) -> BSDFDirection:
 def _bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
     """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
     b = bsdf_direction(scene, x, u)
-    a = trace_from(scene, x.hit.p, b.o, b.wi)
+    a = trace_from(scene, x.hit.p, b.o, b.wi, emission_only=True)
     return _BSDFTerm(b.weight * a.le, b.pdf, a.pdf_light, b.is_delta)
 
 

@@ -7,12 +7,14 @@ import pytest
 import trimesh
 
 from jaxrt.intersect import Hit, TriangleSet, any_hit, closest_hit, intersect_triangle, triangle_set
+from jaxrt.shared_origin import closest_hit_from_origin
 
 _intersect_batch = jax.jit(jax.vmap(intersect_triangle, in_axes=(0, 0, 0, 0, 0, None)))
 _intersect_one = jax.jit(intersect_triangle)
 # the geometry is an argument, not a closure: one compilation per (F, dtype), shared by tests
 _closest_batch = jax.jit(jax.vmap(closest_hit, in_axes=(None, 0, 0, 0)))
 _any_batch = jax.jit(jax.vmap(any_hit, in_axes=(None, 0, 0, 0)))
+_from_origin_batch = jax.jit(jax.vmap(closest_hit_from_origin, in_axes=(None, None, 0, 0)))
 
 
 def moller_trumbore64(o, d, v0, v1, v2):
@@ -194,8 +196,15 @@ def test_closest_and_any_hit_agree_with_per_triangle_reference(x64, scene_rays):
     assert np.all(np.asarray(hit.ng)[~h] == 0) and np.all(np.asarray(hit.b1)[~h] == 0)
 
 
+def _from_origin(ts, o, d, t_max):
+    """closest_hit_from_origin on rays that share the first ray's origin."""
+    assert np.all(o == o[0])
+    return _from_origin_batch(ts, o[0], d, t_max)
+
+
+@pytest.mark.parametrize("query", [_closest_batch, _from_origin], ids=["watertight", "origin"])
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_closest_hit_ties_go_to_the_lowest_index_and_t_max_is_inclusive(x64, dtype):
+def test_closest_hit_ties_go_to_the_lowest_index_and_t_max_is_inclusive(x64, dtype, query):
     """The loop keeps the smallest t, ties to the lowest index (duplicates of one triangle at
     indices 1 and 3 behind a far one at 0 and in front of one at 2), a hit exactly at t_max
     counts, and one ulp less misses: the (t, prim) pair carried as one complex number must
@@ -208,12 +217,15 @@ def test_closest_hit_ties_go_to_the_lowest_index_and_t_max_is_inclusive(x64, dty
     o = np.array([[0.1, 0.0, -1.0]] * 3, dtype)
     d = np.array([[0.0, 0.0, 1.0]] * 3, dtype)
     inf = np.inf
-    hit = _closest_batch(ts, o, d, np.array([inf, inf, inf], dtype))
+    hit = query(ts, o, d, np.array([inf, inf, inf], dtype))
     np.testing.assert_array_equal(np.asarray(hit.prim), [1, 1, 1])
     t = np.asarray(hit.t)[0]
-    assert t == 3  # z = 2 from z = −1 along +z
+    if query is _closest_batch:
+        assert t == 3  # z = 2 from z = −1 along +z
+    else:  # V / det from the rounded v − o (o = 0.1 is not exact): within a few ulp
+        assert abs(t - 3) <= 4 * np.finfo(dtype).eps * 3
     below = np.nextafter(t, dtype(0))
-    hit = _closest_batch(ts, o, d, np.array([t, below, 2.5], dtype))
+    hit = query(ts, o, d, np.array([t, below, 2.5], dtype))
     np.testing.assert_array_equal(np.asarray(hit.prim), [1, -1, -1])
     np.testing.assert_array_equal(np.asarray(hit.t), [t, inf, inf])
 
@@ -279,9 +291,11 @@ def test_watertight_closed_meshes(x64, shape, placement):
     for inside in (center, center + scale * np.array([0.21, -0.13, 0.37])):
         o = np.broadcast_to(inside.astype(dtype), targets.shape)
         d = targets - o
-        hit = _closest_batch(ts, o, d, np.full(len(o), np.inf, dtype))
-        t = np.asarray(hit.t)
-        # every ray leaves a closed surface: a single miss is a crack
-        assert np.all(np.isfinite(t)), f"{np.sum(~np.isfinite(t))} rays escaped"
-        # and it leaves at the aimed point (t = 1) to within the float rounding of the target
-        assert np.max(np.abs(t - 1)) < (1e-9 if x64 else 1e-3)
+        t_max = np.full(len(o), np.inf, dtype)
+        # the watertight test, and the edge planes through the rays' shared origin (camera rays)
+        for hit in (_closest_batch(ts, o, d, t_max), _from_origin_batch(ts, o[0], d, t_max)):
+            t = np.asarray(hit.t)
+            # every ray leaves a closed surface: a single miss is a crack
+            assert np.all(np.isfinite(t)), f"{np.sum(~np.isfinite(t))} rays escaped"
+            # and it leaves at the aimed point (t = 1) to within the float rounding of the target
+            assert np.max(np.abs(t - 1)) < (1e-9 if x64 else 1e-3)

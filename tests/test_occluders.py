@@ -5,7 +5,7 @@ import pytest
 
 from jaxrt import lights as lt
 from jaxrt import materials as mt
-from jaxrt.occluders import one_sided_faces
+from jaxrt.occluders import one_sided_faces, shadow_occluders
 from jaxrt.render import render
 from jaxrt.scene import build_scene, mesh
 from jaxrt.scenes import cornell_box
@@ -18,6 +18,11 @@ def _box(lo, hi):
     v = np.array([[x, y, z] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)], float)
     quads = [(0, 1, 3, 2), (4, 6, 7, 5), (0, 4, 5, 1), (2, 3, 7, 6), (0, 2, 6, 4), (1, 5, 7, 3)]
     return v, np.array([[q[0], q[k], q[k + 1]] for q in quads for k in (1, 2)], np.int32)
+
+
+def _tested(scene):
+    """The triangles a shadow ray must test (before convex bodies take theirs: jaxrt.convex)."""
+    return shadow_occluders(scene.geometry, scene.triangles, scene.lights)
 
 
 def _room(extra_lights=(), inner=True):
@@ -45,11 +50,13 @@ def test_the_walls_of_a_room_are_one_sided_and_what_stands_inside_is_not():
 
 def test_the_cornell_box_skips_its_five_walls_and_its_light():
     scene = cornell_box(16, 16)
-    kept = np.asarray(scene.occluders)
+    kept = np.asarray(_tested(scene))
     walls = 10  # floor, ceiling, back, green and red walls: two triangles each, first
     light = 2  # the light quad, last: every shadow ray ends in its plane
     assert kept.tolist() == list(range(walls, scene.num_triangles - light))
-    assert "shadow rays test 20 of them" in scene.summary()
+    # the two blocks left are convex bodies, tested by their five face planes each
+    assert scene.occluders.shape == (0,)
+    assert "shadow rays test 0 of them and 2 convex bodies (10 planes)" in scene.summary()
 
 
 @pytest.mark.parametrize("light, kept", [
@@ -63,7 +70,7 @@ def test_triangles_in_the_plane_of_every_light_end_are_skipped(light, kept):
     triangles too when every point a light samples lies in their plane."""
     from jaxrt.occluders import coplanar_faces
 
-    occluders = np.asarray(_room(light).occluders)
+    occluders = np.asarray(_tested(_room(light)))
     assert occluders.size == kept
     assert ({24, 25} <= set(occluders.tolist())) == (kept == 12)
     tri = np.array([[[0, 1, 0], [1, 1, 0], [0, 1, 1]], [[0, 0, 0], [1, 0, 0], [0, 1, 0]]], float)
@@ -82,7 +89,7 @@ def test_triangles_in_the_plane_of_every_light_end_are_skipped(light, kept):
 def test_lights_inside_keep_the_walls_skipped_and_lights_outside_do_not(light, kept):
     """24 of the 26 triangles can be skipped or not: 12 walls + the block's bottom skipped
     leaves 12; a light beyond the z = 1 wall (2 triangles) keeps that wall."""
-    occluders = np.asarray(_room([light]).occluders)
+    occluders = np.asarray(_tested(_room([light])))
     assert occluders.size == kept
     assert (set(range(10, 12)) <= set(occluders.tolist())) == (kept == 14)
 
@@ -90,15 +97,18 @@ def test_lights_inside_keep_the_walls_skipped_and_lights_outside_do_not(light, k
 @pytest.mark.parametrize("light", [lt.directional_light([0, -1, 0], [1.0] * 3),
                                    lt.constant_environment([1.0, 1.0, 1.0])])
 def test_light_from_outside_the_scene_tests_every_triangle(light):
-    assert _room([light]).occluders is None
+    scene = _room([light])
+    assert scene.occluders is None and scene.convex is None
 
 
 def test_new_lights_or_geometry_test_every_triangle_unless_told():
     scene = _room()
     sky = lt.light_table([lt.constant_environment([1.0] * 3)])
     assert scene.replace(lights=sky).occluders is None  # the walls now block the sky
+    assert scene.replace(lights=sky).convex is None
     again = scene.replace(triangles=scene.triangles)  # found again: the same list
     assert np.array_equal(np.asarray(again.occluders), np.asarray(scene.occluders))
+    assert np.array_equal(np.asarray(again.convex.planes), np.asarray(scene.convex.planes))
     assert scene.replace(lights=sky, occluders=scene.occluders).occluders is scene.occluders
     assert scene.replace(camera=scene.camera).occluders is scene.occluders
     # render prepares the scene (how triangle lights are sampled) and keeps them
@@ -107,7 +117,8 @@ def test_new_lights_or_geometry_test_every_triangle_unless_told():
 
 
 def test_a_bvh_scene_keeps_its_own_shadow_rays():
-    assert cornell_box(16, 16, accel="bvh").occluders is None
+    scene = cornell_box(16, 16, accel="bvh")
+    assert scene.occluders is None and scene.convex is None
 
 
 @pytest.mark.parametrize("estimator", ["mis", "path"])
@@ -115,6 +126,7 @@ def test_skipping_them_changes_no_pixel(estimator):
     """The Cornell box renders the same bits with and without the skip; skipping a triangle
     that can block (the tall block's faces) changes the image: the test can see a wrong skip."""
     scene = cornell_box(24, 24)
+    scene = scene.replace(occluders=_tested(scene), convex=None)  # triangles only
     run = lambda s: np.asarray(render(s, estimator, spp=4, seed=3, progress=False).image)
     image = run(scene)
     assert np.array_equal(image, run(scene.replace(occluders=None)))

@@ -1,0 +1,111 @@
+"""Tests of the closest hit for rays that share their origin (camera rays, jaxrt.shared_origin).
+
+The watertight closed-mesh test and the ties / t_max test of test_intersect.py run this query
+too; here: agreement with the watertight test on camera rays, the origin in a triangle's
+plane, batched origins, and the render path that uses it.
+"""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxrt import scenes
+from jaxrt.camera import generate_ray
+from jaxrt.intersect import closest_hit, triangle_set
+from jaxrt.shared_origin import closest_hit_from_origin, origin_planes
+
+_general = jax.jit(jax.vmap(closest_hit, in_axes=(None, 0, 0, 0)))
+_shared = jax.jit(jax.vmap(closest_hit_from_origin, in_axes=(None, None, 0, 0)))
+_batched = jax.jit(jax.vmap(closest_hit_from_origin, in_axes=(None, 0, 0, 0)))
+
+
+def _edge_distance(b1, b2):
+    return np.minimum(np.minimum(b1, b2), 1 - b1 - b2)
+
+
+@pytest.mark.parametrize("where", ["cornell", "translated_1e5", "scaled_1e-4"])
+def test_camera_rays_agree_with_the_watertight_test(where):
+    """Jittered camera rays of the Cornell box (262 144 of them): the same triangle as the
+    watertight test except within rounding of an edge, where either may win (the inside test
+    counts an edge within its rounding margin as inside: module notes)."""
+    scene = scenes.cornell_box(256, 256)
+    tris = np.asarray(scene.geometry.vertices, np.float64)
+    eye = np.asarray(scene.camera.eye, np.float64)
+    if where == "translated_1e5":
+        shift = np.array([1e5, -3e4, 7e4])
+        tris, eye = tris + shift, eye + shift
+    elif where == "scaled_1e-4":
+        tris, eye = tris * 1e-4, eye * 1e-4
+    geometry = triangle_set(tris.astype(np.float32))
+    w = scene.width
+    px = np.stack(np.meshgrid(np.arange(w), np.arange(w)), -1).reshape(-1, 2).astype(np.int32)
+    differ = total = 0
+    for k in range(4):
+        u = jax.random.uniform(jax.random.PRNGKey(k), (px.shape[0], 2))
+        _, d = jax.vmap(lambda p, uu: generate_ray(scene.camera, p, uu))(px, u)
+        o = jnp.broadcast_to(jnp.asarray(eye, jnp.float32), d.shape)
+        t_max = jnp.full(d.shape[0], jnp.inf)
+        a, b = _general(geometry, o, d, t_max), _shared(geometry, o[0], d, t_max)
+        same = np.asarray(a.prim == b.prim)
+        # the same triangle: the same distance and point (rounding of V / det vs the shear)
+        h = same & np.asarray(a.prim >= 0)
+        ta, tb = np.asarray(a.t)[h], np.asarray(b.t)[h]
+        assert np.max(np.abs(ta - tb) / ta) < 1e-5
+        np.testing.assert_array_equal(np.asarray(a.p)[h], np.asarray(b.p)[h])
+        # a different one: the ray passes within ~1e-4 (barycentric) of an edge of one of them
+        for hit in (a, b):
+            assert np.all(_edge_distance(np.asarray(hit.b1), np.asarray(hit.b2))[
+                np.asarray(hit.prim >= 0)] > -2e-4)
+        near = np.minimum(np.abs(_edge_distance(np.asarray(a.b1), np.asarray(a.b2))),
+                          np.abs(_edge_distance(np.asarray(b.b1), np.asarray(b.b2))))
+        # or two coplanar triangles at one distance (1e5 away the light quad's float32
+        # vertices round onto the ceiling's plane: z-fighting, either is right)
+        ta, tb = np.asarray(a.t), np.asarray(b.t)
+        tie = np.isfinite(ta) & (np.abs(ta - np.where(np.isfinite(tb), tb, 0)) <= 1e-5 * ta)
+        assert np.all((near < 2e-4) | tie)
+        differ += int(np.sum(~same & ~tie))
+        total += same.size
+    assert differ <= 1e-4 * total, f"{differ} of {total} rays hit another triangle"
+
+
+def test_origin_in_a_triangles_plane_never_hits_it():
+    """Rays from a point of a triangle's plane see it edge on: no hit (not one at t ≈ 0 or at a
+    random distance from a rounded volume), no NaN, and what lies behind it is found."""
+    rng = np.random.default_rng(3)
+    q, _ = np.linalg.qr(rng.standard_normal((3, 3)))
+    flat = np.array([[-1, -1, 0], [1, -1, 0], [0, 1, 0]], np.float64) @ q.T  # a rotated plane
+    origin = np.array([0.3, 2.0, 0.0]) @ q.T  # in that plane, outside the triangle
+    back = flat + 3 * q[:, 2]  # a parallel triangle off the plane
+    tris = np.stack([flat, back]).astype(np.float32)
+    geometry = triangle_set(tris)
+    # n / V per triangle: zero where V is rounding (the in-plane triangle) or padding
+    table = np.asarray(origin_planes(geometry, jnp.asarray(origin, jnp.float32)))
+    # rays towards points of the in-plane triangle (rounded off its plane) and of the other
+    target = np.concatenate([flat[0] + rng.uniform(0, 0.5, (512, 1)) * (flat[1] - flat[0])
+                             + rng.uniform(0, 0.5, (512, 1)) * (flat[2] - flat[0]),
+                             back.mean(0) + 0.1 * rng.standard_normal((512, 3))])
+    d = (target - origin).astype(np.float32)
+    hit = _shared(geometry, jnp.asarray(origin, jnp.float32), d, jnp.full(len(d), jnp.inf))
+    prim = np.asarray(hit.prim)
+    # rows: the in-plane triangle, the parallel one, two never-hit padding triangles
+    assert np.all(table[0, 12:] == 0) and np.any(table[1, 12:] != 0)
+    assert np.all(table[2:, 12:] == 0)
+    assert not np.any(prim[:512] == 0)
+    assert np.mean(prim[512:] == 1) > 0.9  # the parallel triangle behind is seen
+    assert not np.any(np.isnan(np.asarray(hit.t)))
+
+
+def test_batched_origins_give_the_same_hits():
+    """A batched origin forms the planes per ray: the same triangles as one shared origin."""
+    scene = scenes.cornell_box(32, 32)
+    rng = np.random.default_rng(5)
+    d = rng.standard_normal((1024, 3)).astype(np.float32)
+    eye = np.array([0.278, 0.273, 0.3], np.float32)  # inside the box: every ray hits
+    t_max = np.where(rng.uniform(size=1024) < 0.5, np.inf, 0.1).astype(np.float32)
+    a = _shared(scene.geometry, eye, d, t_max)
+    b = _batched(scene.geometry, np.broadcast_to(eye, d.shape), d, t_max)
+    np.testing.assert_array_equal(np.asarray(a.prim), np.asarray(b.prim))
+    # t = V / det: the per-ray program may contract V or det differently, by an ulp or so
+    np.testing.assert_allclose(np.asarray(a.t), np.asarray(b.t), rtol=4 * np.finfo(np.float32).eps)
+    assert 0.5 < np.mean(np.isfinite(np.asarray(a.t))) < 0.95  # t_max = 0.1 rejects some
