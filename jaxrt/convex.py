@@ -21,9 +21,11 @@ a connected set of triangles (sharing vertices exactly) that is
   interior (so no segment starts or ends inside it, other than on its own faces).
 
 Robustness. A shadow ray starts on a surface, offset off it by the point's error bound
-(:mod:`jaxrt.spawn`), often on the body's own face. ``c − n · o`` is computed with an error
-of at most ``γ₈ (|c| + ‖o‖₁)`` (the unit normal and ``c`` are rounded from float64, and three
-products and sums; a margin covers the plane's distance from the float vertices too), and an
+(:mod:`jaxrt.spawn`), often on the body's own face. ``c − n · (o − v)``, with ``v`` a vertex
+of the body that the plane's ``c`` is relative to, is computed with an error of at most
+``γ₈ (|c| + ‖o − v‖₁)`` (``o − v`` rounds once, relative to the difference; the unit normal
+and ``c`` are rounded from float64; three products and sums; a margin covers the plane's
+distance from the float vertices too), and an
 origin within that of a plane counts as on it: leaving through that plane it is outside
 (``t_out = 0``), entering through it it is inside from ``t = 0``. So a ray that leaves a
 body's face is never blocked by that body, whatever the rounding, and one that enters it is.
@@ -83,8 +85,9 @@ def convex_any_hit(bodies: ConvexBodies, o: Array, d: Array, t_max: Array) -> Ar
     zero = jnp.zeros((), dtype)
 
     def one_body(b, found):
-        rows, r = table[b], origins[b]
-        o0, o1, o2 = o[0] - r[0], o[1] - r[1], o[2] - r[2]
+        rows, ref = table[b], origins[b]
+        # relative to the body's vertex: rounds once, relative to the difference
+        o0, o1, o2 = o[0] - ref[0], o[1] - ref[1], o[2] - ref[2]
         slack = gamma(8, dtype) * (jnp.abs(o0) + jnp.abs(o1) + jnp.abs(o2))
         t_in, t_out, outside = zero, t_max, d0 != d0  # (False, batched like the ray)
         for k in range(table.shape[1]):
