@@ -30,7 +30,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from jaxrt.convex import ConvexBodies, convex_bodies
+from jaxrt.convex import SIDE_TOL, ConvexBodies, convex_bodies
 from jaxrt.intersect import TriangleSet
 from jaxrt.vecmath import device_array
 
@@ -62,7 +62,7 @@ def one_sided_faces(triangles: np.ndarray, points: np.ndarray | None = None,
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     norm = np.linalg.norm(n, axis=1)
     extent = np.max(np.abs(np.concatenate([v, balls[:, :3] + balls[:, 3:]])))
-    tol = 64 * np.finfo(np.float64).eps * norm * max(extent, np.finfo(np.float64).tiny)
+    tol = SIDE_TOL * norm * max(extent, np.finfo(np.float64).tiny)
     s = n @ v.T - np.sum(n * tri[:, 0], axis=1)[:, None]  # (F, V) signed distances × |n|
     c = n @ balls[:, :3].T - np.sum(n * tri[:, 0], axis=1)[:, None]
     r = norm[:, None] * balls[:, 3][None, :]
@@ -86,7 +86,7 @@ def coplanar_faces(triangles: np.ndarray, points: np.ndarray) -> np.ndarray:
     norm = np.linalg.norm(n, axis=1)
     extent = max(np.max(np.abs(tri)), np.max(np.abs(pts), initial=0.0),
                  np.finfo(np.float64).tiny)
-    tol = 64 * np.finfo(np.float64).eps * norm * extent
+    tol = SIDE_TOL * norm * extent
     s = n @ pts.T - np.sum(n * tri[:, 0], axis=1)[:, None]  # (F, P) signed distances × |n|
     return (norm > 0) & (pts.shape[0] > 0) & np.all(np.abs(s) <= tol[:, None], axis=1)
 
@@ -148,28 +148,35 @@ def _light_points(lights: Any) -> tuple[np.ndarray, np.ndarray]:
             np.concatenate(balls or [np.zeros((0, 4))]))
 
 
-def shadow_blockers(geometry: Any, triangles: Any, lights: Any) -> tuple[Any, Any]:
+def shadow_blockers(geometry: Any, triangles: Any, lights: Any,
+                    prim_material: Any) -> tuple[Any, Any]:
     """``(occluders, convex)``: what a shadow ray tests, as triangles and as convex bodies.
 
     :func:`shadow_occluders`, then the convex bodies among those triangles
-    (:func:`jaxrt.convex.convex_bodies`), which are tested by their face planes and so leave
-    the list: ``occluders`` (K,) int32 indices of the triangles still tested one by one (None:
-    all of them), ``convex`` a :class:`~jaxrt.convex.ConvexBodies` or None (no body; always
-    None when ``occluders`` is None).
+    (:func:`jaxrt.convex.convex_bodies`; ``prim_material`` (F,): a body's face has one
+    material), which are tested by their face planes and so leave the list: ``occluders``
+    (K,) int32 indices of the triangles still tested one by one (None: all of them),
+    ``convex`` a :class:`~jaxrt.convex.ConvexBodies` or None (no body; always None when
+    ``occluders`` is None or ``prim_material`` is traced). Closest hits test the bodies by
+    their planes too (:func:`jaxrt.scene.intersect`).
     """
     occluders = _occluder_indices(geometry, triangles, lights)
     if occluders is None:
         return None, None
+    if isinstance(prim_material, jax.core.Tracer):
+        return device_array(occluders), None
     tri = np.asarray(triangles)
     emissive = np.zeros(len(tri), bool)
     if lights.structure.count("triangle"):
         emissive[np.asarray(lights.table("triangle").prim)] = True
     points, balls = _light_points(lights)
-    planes, origins, members, kept = convex_bodies(tri, np.asarray(occluders), emissive,
-                                                   points, balls)
-    if not len(planes):
+    found = convex_bodies(tri, np.asarray(occluders), emissive, points, balls,
+                          np.asarray(prim_material))
+    if not len(found.planes):
         return device_array(occluders), None
-    bodies = ConvexBodies(device_array(planes.astype(tri.dtype)),
-                          device_array(origins.astype(tri.dtype)),
-                          device_array(members.astype(np.int32)))
-    return device_array(kept.astype(np.int32)), bodies
+    others = np.setdiff1d(np.arange(len(tri)), found.members)
+    bodies = ConvexBodies(*(device_array(a.astype(tri.dtype))
+                            for a in (found.planes, found.origin, found.caps)),
+                          *(device_array(a.astype(np.int32))
+                            for a in (found.faces, found.members, others)))
+    return device_array(found.kept.astype(np.int32)), bodies

@@ -42,7 +42,7 @@ from jax import Array
 from jaxrt import lights as lt
 from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
-from jaxrt.convex import convex_any_hit
+from jaxrt.convex import convex_any_hit, convex_closest_hit
 from jaxrt.derivatives import nondifferentiable
 from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma
 from jaxrt.occluders import shadow_blockers
@@ -120,8 +120,9 @@ class Scene:
     material_kinds: static sorted tuple of the BSDF kinds present.
     occluders: the triangles a shadow ray tests one by one
         (:func:`jaxrt.occluders.shadow_blockers`), or None for all of ``geometry``.
-    convex: the convex bodies a shadow ray tests by their face planes
-        (:class:`jaxrt.convex.ConvexBodies`, whose triangles ``occluders`` leaves out), or None.
+    convex: the convex bodies shadow rays and closest hits test by their face planes
+        (:class:`jaxrt.convex.ConvexBodies`, whose triangles ``occluders`` and closest hits
+        leave out), or None.
     """
 
     geometry: Any
@@ -150,15 +151,18 @@ class Scene:
     def replace(self, **changes) -> Scene:
         """A copy with some fields replaced (e.g. a new camera or new materials).
 
-        ``occluders`` and ``convex`` belong to the scene's triangles and lights: a copy with
-        new ``geometry``, ``triangles`` or ``lights`` finds them again
+        ``occluders`` and ``convex`` belong to the scene's triangles, materials and lights: a
+        copy with new ``geometry``, ``triangles``, ``prim_material`` or ``lights`` finds them
+        again
         (:func:`jaxrt.occluders.shadow_blockers`; None, every triangle tested, when the new
         arrays are traced) unless ``occluders`` is given too (``convex`` then stays unless
         given: a body tested as planes and as triangles is still right).
         """
         new = dataclasses.replace(self, **changes)
-        if "occluders" not in changes and {"geometry", "triangles", "lights"} & set(changes):
-            occluders, convex = shadow_blockers(new.geometry, new.triangles, new.lights)
+        if "occluders" not in changes and {"geometry", "triangles", "lights",
+                                           "prim_material"} & set(changes):
+            occluders, convex = shadow_blockers(new.geometry, new.triangles, new.lights,
+                                                new.prim_material)
             new = dataclasses.replace(new, occluders=occluders, convex=convex)
         return new
 
@@ -251,7 +255,8 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
-        **dict(zip(("occluders", "convex"), shadow_blockers(geometry, stored, light_table),
+        **dict(zip(("occluders", "convex"), shadow_blockers(geometry, stored, light_table,
+                                                                    prim_material),
                    strict=True)),
     )
 
@@ -311,6 +316,11 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
     """Closest hit of the ray ``o + t d``, ``0 < t < t_max``, against triangles and spheres.
 
     On a miss, ``light`` is the environment's global index (−1 without an environment).
+    The convex bodies of a brute-force scene (``scene.convex``, :mod:`jaxrt.convex`) are
+    clipped against their face planes instead of testing their triangles: the hit is then
+    the face's (``p = o + t d`` with its error bound off the face's plane, the face's normal,
+    ``prim`` a triangle of that face). Not for ``shared_origin`` rays, whose triangle tests
+    cost less than the planes (the MIS pass ran 0.88× as fast with its camera rays clipped).
     Two static options specialise the query without changing what the caller uses of it:
 
     - ``shared_origin``: every ray of the batch starts at ``o`` (a pinhole camera's eye;
@@ -327,13 +337,16 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
       it first reaches no emitter (``light`` −1; ``p``, ``prim`` and ``t`` may then be of
       another non-emissive triangle, or a miss). None of them: every triangle is tested.
     """
-    geometry, prims = scene.geometry, None
+    geometry, prims, bodies = scene.geometry, None, None
     if emission_only and scene.occluders is not None:
         parts = [scene.occluders.astype(jnp.int32)]
         if scene.lights.structure.count("triangle"):
             parts.append(scene.lights.table("triangle").prim.astype(jnp.int32))
         # an emissive triangle among the occluders is tested twice (ties keep the first)
         prims = jnp.concatenate(parts)
+    elif not shared_origin and scene.convex is not None and scene.convex.others.shape[0]:
+        prims, bodies = scene.convex.others, scene.convex  # the bodies by their planes
+    if prims is not None:  # the rows tested, gathered once per batch of rays
         geometry = jax.tree.map(lambda a: a[prims], geometry)
     if shared_origin and isinstance(geometry, TriangleSet):
         hit = closest_hit_from_origin(geometry, o, d, t_max)
@@ -341,12 +354,17 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
         hit = closest_hit(geometry, o, d, t_max)
     if prims is not None:  # back to the scene's triangle indices
         prim = jnp.where(hit.prim >= 0, prims[jnp.maximum(hit.prim, 0)], -1)
-        if scene.convex is not None:
+        if emission_only and scene.convex is not None:
             # a convex body before the emitter: the ray reaches none (stopping short of the
             # emitter by the shadow rays' relative margin, as spawn_ray_to does)
             short = hit.t * (1 - jnp.asarray(SHADOW_EPSILON, o.dtype))
             prim = jnp.where(convex_any_hit(scene.convex, o, d, short), -1, prim)
         hit = hit._replace(prim=prim)
+    if bodies is not None:  # a face of a body before the closest triangle
+        face = convex_closest_hit(bodies, o, d, jnp.minimum(hit.t, t_max))
+        on_face = face.prim >= 0
+        hit = hit._replace(**{k: jnp.where(on_face, getattr(face, k), getattr(hit, k))
+                              for k in ("t", "prim", "ng", "p", "p_error")})
     tri_hit = hit.prim >= 0
     prim = jnp.maximum(hit.prim, 0)
     # the winner's point, error bound and normal come with the hit (no (3, 3) gather here);

@@ -7,14 +7,14 @@ import pytest
 
 from jaxrt import lights as lt
 from jaxrt import materials as mt
-from jaxrt.convex import convex_any_hit
-from jaxrt.intersect import any_hit, triangle_set
+from jaxrt.convex import convex_any_hit, convex_closest_hit
+from jaxrt.intersect import any_hit, closest_hit, gamma, triangle_set
 from jaxrt.occluders import shadow_occluders
 from jaxrt.render import render
-from jaxrt.scene import build_scene, mesh
+from jaxrt.scene import build_scene, intersect, mesh
 from jaxrt.scenes import cornell_box
 from jaxrt.scenes.cornell import cornell_camera
-from jaxrt.spawn import spawn_ray_to
+from jaxrt.spawn import spawn_ray, spawn_ray_to
 
 _convex_batch = jax.jit(jax.vmap(convex_any_hit, in_axes=(None, 0, 0, None)))
 _any_batch = jax.jit(jax.vmap(any_hit, in_axes=(None, 0, 0, None)))
@@ -149,5 +149,130 @@ def test_renders_agree_with_the_triangles_and_a_missing_body_shows(estimator):
     # the same samples: equal to rounding (the blocks' edges aside, no sample changes)
     assert np.max(np.abs(image - reference)) <= 1e-5 * np.max(reference)
     # one block forgotten: its shadow goes (the floor brightens by far more than noise)
-    one = scene.convex._replace(planes=scene.convex.planes[:1], origin=scene.convex.origin[:1])
+    c = scene.convex  # the second block's triangles back to be tested one by one
+    one = c._replace(planes=c.planes[:1], origin=c.origin[:1], caps=c.caps[:1],
+                     faces=c.faces[:1], triangles=c.triangles[:10],
+                     others=jnp.concatenate([c.others, c.triangles[10:]]))
     assert np.sum(run(scene.replace(convex=one)) - reference) > 0.01 * np.sum(reference)
+
+
+_closest_batch = jax.jit(jax.vmap(convex_closest_hit, in_axes=(None, 0, 0, None)))
+_tri_closest = jax.jit(jax.vmap(closest_hit, in_axes=(None, 0, 0, None)))
+
+
+def _placed(scale, shift):
+    """The Cornell box scaled and moved, stored in float32 (triangles and bodies)."""
+    base = cornell_box(16, 16)
+    tris = np.asarray(base.triangles, np.float64) * scale + shift
+    tri32 = tris.astype(np.float32)
+    return base.replace(triangles=jnp.asarray(tri32), geometry=triangle_set(tri32)), tri32
+
+
+@pytest.mark.parametrize("scale, shift", [(1.0, 0.0), (1e-4, 0.0), (1e5, 0.0), (1.0, 1e5)])
+def test_closest_hits_by_planes_are_the_triangles_hits(scale, shift):
+    """Rays from every kind of point — spawned off the walls and the blocks' faces as a path
+    continues, and from anywhere in the room, inside the blocks included — find the same
+    face by the planes as by the blocks' triangles (a two-sided triangle's inside is hit from
+    inside), at every scale and placement: same material, same distance to rounding, and a
+    hit point within its error bound of the face's plane."""
+    scene, tri32 = _placed(scale, shift)
+    bodies = scene.convex
+    members = np.asarray(bodies.triangles)
+    tris = tri32.astype(np.float64)
+    rng = np.random.default_rng(2)
+    n = 20000
+    f = rng.integers(0, 30, n)
+    p = np.einsum("nk,nkc->nc", rng.dirichlet(np.ones(3), n), tris[f])
+    ng = np.cross(tris[f, 1] - tris[f, 0], tris[f, 2] - tris[f, 0])
+    ng /= np.linalg.norm(ng, axis=1, keepdims=True)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    ng = np.where(np.sum(ng * d, 1, keepdims=True) < 0, -ng, ng)  # leaving on d's side
+    room = rng.uniform(tris.reshape(-1, 3).min(0), tris.reshape(-1, 3).max(0), (n, 3))
+    p_err = np.asarray(gamma(7, jnp.float32)) * np.abs(p) * 3
+    spawned = jax.vmap(spawn_ray)(*(jnp.asarray(a, jnp.float32) for a in (p, ng, d, p_err)))[0]
+    for o in (spawned, jnp.asarray(room, jnp.float32)):
+        dd = jnp.asarray(d, jnp.float32)
+        got = _closest_batch(bodies, o, dd, jnp.float32(jnp.inf))
+        ref = _tri_closest(triangle_set(tri32[members]), o, dd, jnp.float32(jnp.inf))
+        ref_prim = np.where(np.asarray(ref.prim) >= 0, members[np.maximum(ref.prim, 0)], -1)
+        prim = np.asarray(got.prim)
+        assert 0.1 < np.mean(prim >= 0) < 0.9  # both outcomes exercised
+        mat = np.asarray(scene.prim_material)
+        same = (prim >= 0) == (ref_prim >= 0)
+        same[prim >= 0] &= mat[prim[prim >= 0]] == mat[ref_prim[prim >= 0]]
+        # only rays that graze an edge, or start within rounding of a face, may differ
+        assert np.mean(~same) <= 5e-4, f"{np.sum(~same)} of {n} differ"
+        both = same & (prim >= 0)
+        t, t_ref = np.asarray(got.t)[both], np.asarray(ref.t)[both]
+        assert np.all(np.abs(t - t_ref) <= 1e-4 * np.maximum(np.abs(t_ref), scale)), \
+            np.max(np.abs(t - t_ref))
+        # the point is within its bound of the face's plane (float64, the stored vertices)
+        v = tris[prim[prim >= 0]]
+        n64 = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+        n64 /= np.linalg.norm(n64, axis=1, keepdims=True)
+        off = np.abs(np.sum((np.asarray(got.p, np.float64)[prim >= 0] - v[:, 0]) * n64, 1))
+        assert np.all(off <= np.asarray(got.p_error)[prim >= 0, 0]), np.max(
+            off / np.asarray(got.p_error)[prim >= 0, 0])
+
+
+@pytest.mark.parametrize("scale, shift", [(1.0, 0.0), (1e-4, 0.0), (1e5, 0.0), (1.0, 1e5)])
+def test_a_ray_leaving_a_face_never_meets_its_body_again(scale, shift):
+    """A path's next ray, spawned off a block's face with the hit's error bound, whichever
+    side of the face it leaves on (outwards: as reflected; the face's normal as shaded), is
+    not hit by that body again at any scale — no self-intersection."""
+    scene, tri32 = _placed(scale, shift)
+    bodies = scene.convex
+    rng = np.random.default_rng(4)
+    n = 20000
+    # first hits on the blocks from points in the room above them
+    lo, hi = tri32.reshape(-1, 3).min(0), tri32.reshape(-1, 3).max(0)
+    o = rng.uniform(lo, hi, (n, 3))
+    o[:, 1] = lo[1] + (0.8 + 0.15 * rng.uniform(size=n)) * (hi[1] - lo[1])
+    d = rng.normal(size=(n, 3))
+    d[:, 1] = -np.abs(d[:, 1]) - 0.5
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    first = _closest_batch(bodies, jnp.asarray(o, jnp.float32), jnp.asarray(d, jnp.float32),
+                           jnp.float32(jnp.inf))
+    on = np.asarray(first.prim) >= 0
+    assert on.mean() > 0.1
+    ng = np.asarray(first.ng)[on]
+    wi = rng.normal(size=(on.sum(), 3))
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wi = np.where(np.sum(wi * ng, 1, keepdims=True) < 0, -wi, wi)  # back out of the face
+    wi = jnp.asarray(wi, jnp.float32)
+    o2 = jax.vmap(spawn_ray)(first.p[on], jnp.asarray(ng), wi, first.p_error[on])[0]
+    again = _closest_batch(bodies, o2, wi, jnp.float32(jnp.inf))
+    prim = np.asarray(again.prim)
+    body_of = {int(t): b for b in range(bodies.count)
+               for t in np.asarray(bodies.triangles)[10 * b:10 * b + 10]}
+    same_body = np.array([p >= 0 and body_of[p] == body_of[int(q)]
+                          for p, q in zip(prim, np.asarray(first.prim)[on], strict=True)])
+    assert not np.any(same_body), f"{same_body.sum()} rays met their body again"
+
+
+def test_from_inside_and_through_the_cap():
+    """Inside an open block standing on the floor, a ray meets the face it leaves by (as the
+    triangles' insides), or, leaving through the open bottom, none (the floor takes it)."""
+    scene = _scene(_block((0.3, 0, 0.3), (0.6, 0.4, 0.6), bottom=False))
+    assert scene.convex.count == 1 and np.asarray(scene.convex.caps)[0, 1] == -1
+    o = jnp.asarray([[0.45, 0.2, 0.45]] * 3, jnp.float32)
+    d = jnp.asarray([[0, 1, 0], [1, 0, 0], [0, -1, 0]], jnp.float32)
+    hit = _closest_batch(scene.convex, o, d, jnp.float32(jnp.inf))
+    np.testing.assert_allclose(np.asarray(hit.t)[:2], [0.2, 0.15], rtol=1e-5)
+    np.testing.assert_allclose(np.asarray(hit.ng)[:2], [[0, 1, 0], [1, 0, 0]], atol=1e-6)
+    assert int(hit.prim[2]) == -1 and np.isinf(hit.t[2])
+    # and the scene's intersect finds the floor there, as with the triangles
+    full = jax.vmap(lambda o, d: intersect(scene, o, d, jnp.float32(jnp.inf)))(o, d)
+    tri = jax.vmap(lambda o, d: intersect(scene.replace(convex=None), o, d,
+                                          jnp.float32(jnp.inf)))(o, d)
+    np.testing.assert_allclose(np.asarray(full.t), np.asarray(tri.t), rtol=1e-5)
+    np.testing.assert_array_equal(np.asarray(full.material), np.asarray(tri.material))
+
+
+def test_a_face_of_two_materials_is_no_body():
+    v, f = _box((0.3, 0, 0.3), (0.6, 0.4, 0.6))
+    one = [mesh(v, f[:1], mt.diffuse(0.2), name="a"), mesh(v, f[1:], mt.diffuse(0.5), name="b")]
+    assert _scene(*one).convex is None  # the first face's two triangles differ
+    same = [mesh(v, f[:2], mt.diffuse(0.2), name="a"), mesh(v, f[2:], mt.diffuse(0.5), name="b")]
+    assert _scene(*same).convex.count == 1  # a face per material: a body
