@@ -166,6 +166,9 @@ def arrive(scene: Scene, est: Estimator, st: PathState, seg: Segment) -> PathSta
     against light sampling at ``seg.p``, and move to the vertex hit."""
     a = trace_from(scene, seg.p, seg.o, seg.d)
     w = jnp.where(seg.unweighted, 1, mis_weight(est.heuristic, 1, seg.pdf_bsdf, 1, a.pdf_light))
+    # stored once: fused into the (3,) sum below, the weight (the light's pdf at the hit, its
+    # table rows gathered) was computed per component (path pass 1.05×, bit-identical)
+    w = computed_once(w)
     radiance = st.radiance + jnp.where(st.active, st.beta * w * a.le, 0)
     vertex = st.vertex + 1
     return PathState(shading_point(scene, a.hit, -seg.d), st.beta, radiance, vertex,
