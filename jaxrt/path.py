@@ -167,7 +167,7 @@ def arrive(scene: Scene, est: Estimator, st: PathState, seg: Segment) -> PathSta
     a = trace_from(scene, seg.p, seg.o, seg.d)
     w = jnp.where(seg.unweighted, 1, mis_weight(est.heuristic, 1, seg.pdf_bsdf, 1, a.pdf_light))
     # stored once: fused into the (3,) sum below, the weight (the light's pdf at the hit, its
-    # table rows gathered) was computed per component (path pass 1.05×, bit-identical)
+    # table rows gathered) was computed per component (path pass 1.03×, bit-identical)
     w = computed_once(w)
     radiance = st.radiance + jnp.where(st.active, st.beta * w * a.le, 0)
     vertex = st.vertex + 1
