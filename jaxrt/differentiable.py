@@ -56,7 +56,6 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
-from jaxrt.bvh import BVH
 from jaxrt.estimators import (
     Estimator,
     PointEstimate,
@@ -224,10 +223,8 @@ def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total,
     num_pixels = h * w
     tile_size = LANES * math.ceil(int(tile_size) / LANES)
     per_step, steps = step_layout(math.ceil(num_pixels / tile_size), int(batch_size))
-    # the lanes of a step as render_tiles lays them out: (tiles, pixels), flat for a BVH
-    lanes = ((per_step * tile_size,) if isinstance(scene.geometry, BVH)
-             else (per_step, tile_size))
-    pixels = jnp.arange(steps * per_step * tile_size, dtype=jnp.int32).reshape((steps,) + lanes)
+    # the lanes of a step as render_tiles lays them out: one flat axis
+    pixels = jnp.arange(steps * per_step * tile_size, dtype=jnp.int32).reshape(steps, -1)
     dtype = scene.triangles.dtype
     # lanes past the image's end take a zero cotangent (row num_pixels)
     c = jnp.concatenate([jnp.asarray(cotangent, dtype).reshape(num_pixels, 3),
@@ -240,9 +237,8 @@ def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total,
 
     def weighted(p, pix, first):  # Σ_lanes Σ_{j<m} ⟨c_p, L(p, first + j; θ)⟩ / N
         sc = guard_geometry(with_params(scene, p))
-        sample = lambda pixel, i: camera_sample(sc, est, pixel, i, seed, sampler, spp_total)
-        for _ in range(pix.ndim):
-            sample = jax.vmap(sample, (0, None))
+        sample = jax.vmap(lambda pixel, i: camera_sample(sc, est, pixel, i, seed, sampler,
+                                                         spp_total), (0, None))
         if m > 1:  # (a vmap over one index gives every value an axis of 1: slower)
             sample = jax.vmap(sample, (None, 0))
         inside = pix < num_pixels

@@ -24,7 +24,6 @@ import numpy as np
 from jax import Array, lax
 
 from jaxrt import program_cache
-from jaxrt.bvh import BVH
 from jaxrt.estimators import (
     Estimator,
     Stream,
@@ -84,8 +83,8 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
               start, count: int, sums: Sums) -> Sums:
     """``sums`` advanced by samples ``start … start+count−1`` of each pixel of ``pixels``.
 
-    ``pixels``: int32 flat pixel indices of any shape (the lanes); ``sums`` has that shape
-    (plus a channel axis of 3 for Σ L and Σ L²).
+    ``pixels``: (N,) int32 flat pixel indices (the lanes); ``sums`` has that shape (plus a
+    channel axis of 3 for Σ L and Σ L²).
 
     One sequential chain per pixel over the sample indices: a pass takes the running sums
     as its initial carry, so where passes cut the chain never changes the result, bit for
@@ -116,19 +115,17 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     if est.name == "path":
         # paths of unequal length: lanes regenerate paths and are compacted (jaxrt.path)
         stream = lambda pixel, k: Stream(sampler, seed, pixel, start + k, spp_total)
-        flat = jax.tree.map(lambda a: a.reshape((pixels.size,) + a.shape[pixels.ndim:]), sums)
         # L² stored before the fold reads it (as the loop carry stores it below), so that
         # LLVM cannot contract it into the TwoSum's adds: the same sums as `mis` at depth 2
-        out = pass_sums(scene, est, stream, pixels.reshape(-1), count, flat,
-                        lambda a, v: _fold(a, (v, computed_once(v * v))))
-        return jax.tree.map(lambda a, b: a.reshape(b.shape), out, sums)
+        return pass_sums(scene, est, stream, pixels, count, sums,
+                         lambda a, v: _fold(a, (v, computed_once(v * v))))
 
     stream = lambda pixel, index: Stream(sampler, seed, pixel, index, spp_total)
-    first = lambda pixel, index: camera_hit(scene, pixel, stream(pixel, index))
-    rest = lambda pixel, index, hit, wo: camera_radiance(scene, est, hit, wo,
-                                                         stream(pixel, index))
-    for _ in range(pixels.ndim):
-        first, rest = jax.vmap(first, (0, None)), jax.vmap(rest, (0, None, 0, 0))
+    first = jax.vmap(lambda pixel, index: camera_hit(scene, pixel, stream(pixel, index)),
+                     (0, None))
+    rest = jax.vmap(lambda pixel, index, hit, wo: camera_radiance(scene, est, hit, wo,
+                                                                  stream(pixel, index)),
+                    (0, None, 0, 0))
 
     def body(k, carry):
         acc, previous, (hit, wo) = carry
@@ -175,9 +172,11 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
     first_tile+num_tiles)``.
 
     The tiles run ``batch_size`` at a time (a ``lax.map`` over steps; the last step is
-    padded). BVH scenes lay a step's lanes out flat, so that the BVH's batching rule sees all
-    of its rays and compacts the slow ones (tile by tile it was 1.74× slower on a 1 922-triangle
-    box); brute-force scenes as (tiles, pixels), which ran 1.1× faster than flat (paired).
+    padded), a step's pixels laid out flat as one axis of lanes, vmapped once: the BVH's
+    batching rule then sees all of its rays and compacts the slow ones (tile by tile it was
+    1.74× slower on a 1 922-triangle box). Brute-force scenes were laid out as (tiles, pixels)
+    and vmapped twice until the tenth session: flat, the 256² MIS pass traces in ~0.4 s less
+    and runs 1.06× faster per CPU-second (benchmarks/README.md, "tenth session").
 
     ``sums`` and the result have a leading axis of ``steps · per_step · tile_size`` lanes
     (:func:`step_layout`: the padded last step included); lanes past the end of the image are
@@ -185,8 +184,6 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
     """
     num_pixels = scene.width * scene.height
     per_step, steps = step_layout(num_tiles, batch_size)
-    lanes = (per_step, tile_size) if not isinstance(scene.geometry, BVH) else (
-        per_step * tile_size,)  # brute force: (tiles, pixels), vmapped twice (flat: 0.90×)
     pixels = (first_tile * tile_size
               + jnp.arange(steps * per_step * tile_size, dtype=jnp.int32))
 
@@ -195,9 +192,9 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
         return lane_sums(scene, est, sampler, spp_total, seed,
                          jnp.where(pix < num_pixels, pix, 0), start, count, acc)
 
-    by_step = lambda a: a.reshape((steps,) + lanes + a.shape[1:])
+    by_step = lambda a: a.reshape((steps, per_step * tile_size) + a.shape[1:])
     out = lax.map(step, (by_step(pixels), jax.tree.map(by_step, sums)))
-    return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[1 + len(lanes):]), out)
+    return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
 
 
 class RenderPass:
