@@ -142,7 +142,11 @@ def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
         if where != "materials":
             light_tables[where] = lights.table(where)._replace(**fields)
     materials = scene.materials._replace(**by_table.get("materials", {}))
-    return scene.replace(materials=materials, lights=dataclasses.replace(lights, **light_tables))
+    # radiometry only: what can block a shadow ray (occluders, convex bodies) stays as it is.
+    # Found again, it would be lost wherever the scene is traced (a jitted derivative pass):
+    # every triangle tested, every body by its triangles.
+    return scene.replace(materials=materials, lights=dataclasses.replace(lights, **light_tables),
+                         occluders=scene.occluders, convex=scene.convex)
 
 
 def _check(spp, sampler: str, name: str = "spp") -> int:

@@ -55,6 +55,25 @@ def test_exported_and_validated():
         with_params(CORNELL, {"point.intensity": jnp.ones((1, 3))})
 
 
+def test_with_params_keeps_what_blocks_shadow_rays_when_traced():
+    """Radiometric parameters change neither the shadow rays' occluders nor the convex
+    bodies; re-found from traced arrays (the derivative pass takes the scene as an argument
+    of its program) they were dropped, and every triangle was tested."""
+    assert CORNELL.occluders is not None and CORNELL.convex is not None
+    seen = {}
+
+    @jax.jit
+    def traced(scene, params):
+        s = with_params(scene, params)
+        seen["occluders"], seen["convex"] = s.occluders, s.convex
+        return s.materials.kd
+
+    traced(CORNELL, scene_params(CORNELL))
+    assert seen["occluders"].shape == CORNELL.occluders.shape
+    assert seen["convex"] is not None
+    assert seen["convex"].planes.shape == CORNELL.convex.planes.shape
+
+
 def _kd_batch(scale):
     kd = scene_params(CORNELL)["materials.kd"]
     return kd * scale[:, None, None]
