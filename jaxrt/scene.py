@@ -47,7 +47,7 @@ from jaxrt.derivatives import nondifferentiable
 from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma
 from jaxrt.occluders import shadow_blockers
 from jaxrt.shared_origin import closest_hit_from_origin
-from jaxrt.spawn import SHADOW_EPSILON
+from jaxrt.spawn import short_of
 from jaxrt.vecmath import device_array, dot, normalize
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
@@ -357,8 +357,7 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
         if emission_only and scene.convex is not None:
             # a convex body before the emitter: the ray reaches none (stopping short of the
             # emitter by the shadow rays' relative margin, as spawn_ray_to does)
-            short = hit.t * (1 - jnp.asarray(SHADOW_EPSILON, o.dtype))
-            prim = jnp.where(convex_any_hit(scene.convex, o, d, short), -1, prim)
+            prim = jnp.where(convex_any_hit(scene.convex, o, d, short_of(hit.t)), -1, prim)
         hit = hit._replace(prim=prim)
     if bodies is not None:  # a face of a body before the closest triangle
         face = convex_closest_hit(bodies, o, d, jnp.minimum(hit.t, t_max))

@@ -25,6 +25,13 @@ from jaxrt.vecmath import dot
 SHADOW_EPSILON = 1e-4
 
 
+def short_of(t: Array, shadow_epsilon: float = SHADOW_EPSILON) -> Array:
+    """``t (1 − shadow_epsilon)``: a ray's parameter stopped a relative margin short of ``t``
+    (a shadow ray's ``t_max`` for its target at ``t``; :func:`spawn_ray_to` has ``t = 1``)."""
+    t = jnp.asarray(t)
+    return t * (1 - jnp.asarray(shadow_epsilon, t.dtype))
+
+
 def hit_point(v0: Array, v1: Array, v2: Array, b1: Array, b2: Array) -> tuple[Array, Array]:
     """Point of a triangle from barycentrics, with a conservative bound on its rounding error.
 
@@ -125,5 +132,4 @@ def spawn_ray_to(p: Array, n: Array, q: Array, n_q: Array, p_error: Array | None
         q_error = default_point_error(q)
     origin = offset_ray_origin(p, p_error, n, q - p)
     target = offset_ray_origin(q, q_error, n_q, origin - q)
-    t_max = 1 - jnp.asarray(shadow_epsilon, p.dtype)
-    return origin, target - origin, t_max
+    return origin, target - origin, short_of(jnp.ones((), p.dtype), shadow_epsilon)
