@@ -55,8 +55,9 @@ from jaxrt import materials as mt
 from jaxrt.camera import generate_ray
 from jaxrt.estimators import camera_sample, compiler_options, make_estimator, prepare_scene
 from jaxrt.render import render
-from jaxrt.scene import intersect, material_at, shading_normal
+from jaxrt.scene import emitted, intersect, material_at, shading_normal
 from jaxrt.scenes import cornell_box
+from jaxrt.spawn import spawn_ray
 from jaxrt.vecmath import to_local, to_world
 
 SIZE = 256
@@ -108,8 +109,9 @@ def truncated_sample(level: int):
         acc = acc + wi * bs.pdf + bs.weight
         if level == 7:
             return acc
-        le, h = terms_mod._trace_emission(scene, x, wi)
-        acc = acc + le + h.p
+        o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
+        h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype), emission_only=True)
+        acc = acc + emitted(scene, h, -d) + h.p
         if level == 8:
             return acc
         return acc + lt.pdf_li(scene.lights, hit.p, wi, h.light, h.p)
