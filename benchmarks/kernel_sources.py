@@ -5,13 +5,15 @@
 Compiles the real render pass (:class:`jaxrt.passes.RenderPass`, 256² Cornell box, the
 independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
 time to the source line of its root operation (the optimised HLO's ``stack_frame_id``
-tables), innermost frame first. Then it lists the costly operations (``sin``, ``cos``,
-``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source line appears in more than
-one kernel: XLA:CPU fuses a cheap elementwise producer into every consumer, so such a value
-is computed once per kernel that reads it (and once per element of a (…, 3) output);
-:func:`jaxrt.vecmath.computed_once` stores it. Each compaction stage of the path pass is a
-copy of its step, so there every line shows up once per stage; and one line of the
-sampler's hash serves every random dimension, so its count is mostly distinct values.
+tables), innermost frame first, beside the number of kernels compiled for that line (a
+compile costs ~18 ms of CPU per kernel: benchmarks/README.md). Then it lists the costly
+operations (``sin``, ``cos``, ``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source
+line appears in more than one kernel: XLA:CPU fuses a cheap elementwise producer into every
+consumer, so such a value is computed once per kernel that reads it (and once per element of
+a (…, 3) output); :func:`jaxrt.vecmath.computed_once` stores it. Each compaction stage of
+the path pass is a copy of its step, so there every line shows up once per stage; and one
+line of the sampler's hash serves every random dimension, so its count is mostly distinct
+values.
 
 This is how the ``computed_once`` change was found (benchmarks/README.md, "fifth session").
 """
@@ -74,15 +76,23 @@ def main(argv=None) -> None:
     where, bodies = source_lines(text)
     sums = jax.block_until_ready(run(run.zeros(), 0, a.spp))  # warm-up
     ms = kernel_times(lambda s: run(s, a.spp, a.spp), (sums,))
+    def line_of(kernel: str) -> str:
+        root = re.search(r"ROOT %(\S+) =", bodies[kernel]) if kernel in bodies else None
+        return where.get(root.group(1), where.get(kernel, "?")) if root else where.get(kernel, "?")
+
     by_line, total = collections.defaultdict(float), 0.0
     for kernel, t in ms.items():
         if kernel in where and not kernel.startswith("while"):
-            root = re.search(r"ROOT %(\S+) =", bodies[kernel]) if kernel in bodies else None
-            by_line[where.get(root.group(1), where[kernel]) if root else where[kernel]] += t
+            by_line[line_of(kernel)] += t
             total += t
-    print(f"{a.estimator}, 256², {a.spp} spp: {total:.0f} ms of kernels; by source line:")
+    # every fusion is compiled to a kernel of its own (~18 ms of CPU each, whatever its size:
+    # benchmarks/README.md, "eleventh session"), run or not: the compile cost by line
+    compiled = collections.Counter(line_of(kernel) for kernel in bodies)
+    print(f"{a.estimator}, 256², {a.spp} spp: {total:.0f} ms of kernels, {len(bodies)} kernels "
+          "compiled; by source line (run time, share, kernels compiled):")
     for line, t in sorted(by_line.items(), key=lambda r: -r[1])[:a.top]:
-        print(f"  {t:8.1f} ms {100 * t / total:5.1f} %  {line}")
+        print(f"  {t:8.1f} ms {100 * t / total:5.1f} % {compiled[line]:4d}  {line}")
+    print("most kernels compiled:", ", ".join(f"{line} {n}" for line, n in compiled.most_common(8)))
     seen = collections.defaultdict(set)
     for kernel, body in bodies.items():
         for instr, op in re.findall(r"%(\S+) = \S+ (" + "|".join(COSTLY) + r")\(", body):
