@@ -115,6 +115,42 @@ def _before(a1: Array, b1: Array, a2: Array, b2: Array) -> Array:
     return a1 * b2 < a2 * b1
 
 
+class _Interval(NamedTuple):
+    """The part ``(t_in, t_out)`` of a ray inside one body, as fractions ``t = a / b``
+    (:func:`_clip`), with the rows it enters and leaves by (−1: none) and whether it runs
+    outside a plane it is parallel to (then it is never inside)."""
+
+    a_in: Array
+    b_in: Array
+    a_out: Array
+    b_out: Array
+    k_in: Array
+    k_out: Array
+    outside: Array
+
+    @property
+    def nonempty(self) -> Array:
+        """``t_in < t_out`` and not outside a parallel plane."""
+        return ~self.outside & _before(self.a_in, self.b_in, self.a_out, self.b_out)
+
+
+def _clip_body(rows, rel: tuple, slack: Array, d: Array, t_max: Array) -> _Interval:
+    """Cyrus–Beck: ``(0, t_max)`` clipped by each plane row of ``rows`` in turn (a row the ray
+    crosses going in raises ``t_in``, going out lowers ``t_out``); unrolled over the rows."""
+    dtype = d.dtype
+    zero, one, none = jnp.zeros((), dtype), jnp.ones((), dtype), jnp.asarray(-1, dtype)
+    c = _Interval(zero, one, t_max, one, none, none, d[0] != d[0])  # outside: False, batched
+    for k, row in enumerate(rows):
+        a, bb, den = _clip(row, rel, slack, d)
+        enter = (den < 0) & _before(c.a_in, c.b_in, a, bb)
+        leave = (den > 0) & _before(a, bb, c.a_out, c.b_out)
+        c = _Interval(jnp.where(enter, a, c.a_in), jnp.where(enter, bb, c.b_in),
+                      jnp.where(leave, a, c.a_out), jnp.where(leave, bb, c.b_out),
+                      jnp.where(enter, k, c.k_in), jnp.where(leave, k, c.k_out),
+                      c.outside | ((den == 0) & (a < 0)))
+    return c
+
+
 def _key(t: Array, row, bits: int) -> Array:
     """``t ≥ 0`` and a row index ``< 2^bits`` as one float ordered by ``t`` (to within
     ``2^bits`` ulps), then by row: t's bits, clamped to the normal finite floats, with the
@@ -143,21 +179,11 @@ def convex_any_hit(bodies: ConvexBodies, o: Array, d: Array, t_max: Array) -> Ar
     dtype = d.dtype
     table, origins = bodies.planes.astype(dtype), bodies.origin.astype(dtype)
     t_max = jnp.asarray(t_max, dtype)
-    zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
 
     def one_body(b, found):
         rel, slack = _relative(o, origins[b])
-        # t_in = a_in / b_in from 0, t_out = a_out / b_out from t_max
-        a_in, b_in, a_out, b_out = zero, one, t_max, one
-        outside = d[0] != d[0]  # (False, batched like the ray)
-        for k in range(table.shape[1]):
-            a, bb, den = _clip(table[b, k], rel, slack, d)
-            enter = (den < 0) & _before(a_in, b_in, a, bb)
-            leave = (den > 0) & _before(a, bb, a_out, b_out)
-            a_in, b_in = jnp.where(enter, a, a_in), jnp.where(enter, bb, b_in)
-            a_out, b_out = jnp.where(leave, a, a_out), jnp.where(leave, bb, b_out)
-            outside = outside | ((den == 0) & (a < 0))
-        return found | (~outside & _before(a_in, b_in, a_out, b_out))
+        rows = [table[b, k] for k in range(table.shape[1])]
+        return found | _clip_body(rows, rel, slack, d, t_max).nonempty
 
     start = d[0] != d[0]  # False, a value of the ray: batched under vmap from the start
     # unrolled into one kernel, its one result stored (not fused into every consumer): the
@@ -209,28 +235,16 @@ def convex_closest_hit(bodies: ConvexBodies, o: Array, d: Array, t_max: Array) -
     origins = bodies.origin.astype(dtype)
     inf = jnp.asarray(jnp.inf, dtype)
     t_max = jnp.asarray(t_max, dtype)
-    none = jnp.asarray(-1, dtype)
-    zero, one = jnp.zeros((), dtype), jnp.ones((), dtype)
 
     def one_body(b, best):
         rel, slack = _relative(o, origins[b])
-        a_in, b_in, a_out, b_out = zero, one, inf, one  # fractions, as in convex_any_hit
-        k_in, k_out, outside = none, none, d[0] != d[0]
-        for k in range(width):
-            a, bb, den = _clip(rows[b, k], rel, slack, d)
-            enter = (den < 0) & _before(a_in, b_in, a, bb)
-            leave = (den > 0) & _before(a, bb, a_out, b_out)
-            a_in, b_in, k_in = (jnp.where(enter, a, a_in), jnp.where(enter, bb, b_in),
-                                jnp.where(enter, k, k_in))
-            a_out, b_out, k_out = (jnp.where(leave, a, a_out), jnp.where(leave, bb, b_out),
-                                   jnp.where(leave, k, k_out))
-            outside = outside | ((den == 0) & (a < 0))
+        c = _clip_body([rows[b, k] for k in range(width)], rel, slack, d, inf)
         # entering through a face (not the cap): that face; else the face it leaves by
-        by_face = (k_in >= 0) & (k_in < width - 1)
-        a, bb, k = (jnp.where(by_face, a_in, a_out), jnp.where(by_face, b_in, b_out),
-                    jnp.where(by_face, k_in, k_out))
+        by_face = (c.k_in >= 0) & (c.k_in < width - 1)
+        a, bb, k = (jnp.where(by_face, c.a_in, c.a_out), jnp.where(by_face, c.b_in, c.b_out),
+                    jnp.where(by_face, c.k_in, c.k_out))
         t = a / bb  # one division per body, in the body's kernel
-        better = (~outside & _before(a_in, b_in, a_out, b_out) & (k >= 0) & (k < width - 1)
+        better = (c.nonempty & (k >= 0) & (k < width - 1)
                   & (_key(t, b * width + k.astype(jnp.int32), bits) < best))
         return jnp.where(better, _key(t, b * width + k.astype(jnp.int32), bits), best)
 
