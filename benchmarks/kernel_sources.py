@@ -5,8 +5,10 @@
 Compiles the real render pass (:class:`jaxrt.passes.RenderPass`, 256² Cornell box, the
 independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
 time to the source line of its root operation (the optimised HLO's ``stack_frame_id``
-tables), innermost frame first, beside the number of kernels compiled for that line (a
-compile costs ~18 ms of CPU per kernel: benchmarks/README.md). Then it lists the costly
+tables), innermost frame first, beside the number of kernels of that line and how many of
+them are distinct (XLA:CPU compiles a kernel once however many identical copies a program
+holds, and each distinct kernel costs ~20–40 ms of CPU to compile: benchmarks/README.md,
+"twelfth session"). Then it lists the costly
 operations (``sin``, ``cos``, ``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source
 line appears in more than one kernel: XLA:CPU fuses a cheap elementwise producer into every
 consumer, so such a value is computed once per kernel that reads it (and once per element of
@@ -52,6 +54,13 @@ def source_lines(text: str) -> tuple[dict, dict]:
     return where, {kernel: bodies[comp] for kernel, comp in calls if comp in bodies}
 
 
+def distinct(body: str) -> str:
+    """A fused computation's text without its instruction names and metadata: two kernels
+    with the same text are one kernel to XLA:CPU's compiler."""
+    return "\n".join(re.sub(r"%[\w.\-]+", "%", re.sub(r", metadata=\{.*?\}", "", line)).strip()
+                     for line in body.splitlines())
+
+
 def kernel_times(exe, args) -> dict[str, float]:
     """Milliseconds per kernel (XLA:CPU thunk name) of one run of ``exe(*args)``."""
     ms = collections.defaultdict(float)
@@ -85,14 +94,20 @@ def main(argv=None) -> None:
         if kernel in where and not kernel.startswith("while"):
             by_line[line_of(kernel)] += t
             total += t
-    # every fusion is compiled to a kernel of its own (~18 ms of CPU each, whatever its size:
-    # benchmarks/README.md, "eleventh session"), run or not: the compile cost by line
+    # each distinct fusion is compiled once (~20-40 ms of CPU, whatever its size), run or
+    # not: the compile cost by line (benchmarks/README.md, "eleventh" and "twelfth session")
     compiled = collections.Counter(line_of(kernel) for kernel in bodies)
-    print(f"{a.estimator}, 256², {a.spp} spp: {total:.0f} ms of kernels, {len(bodies)} kernels "
-          "compiled; by source line (run time, share, kernels compiled):")
+    first = {}
+    for kernel, body in bodies.items():
+        first.setdefault(distinct(body), kernel)
+    unique = collections.Counter(line_of(kernel) for kernel in first.values())
+    print(f"{a.estimator}, 256², {a.spp} spp: {total:.0f} ms of kernels, {len(bodies)} kernels, "
+          f"{len(first)} distinct; by source line (run time, share, kernels, distinct):")
     for line, t in sorted(by_line.items(), key=lambda r: -r[1])[:a.top]:
-        print(f"  {t:8.1f} ms {100 * t / total:5.1f} % {compiled[line]:4d}  {line}")
-    print("most kernels compiled:", ", ".join(f"{line} {n}" for line, n in compiled.most_common(8)))
+        share = 100 * t / total
+        print(f"  {t:8.1f} ms {share:5.1f} % {compiled[line]:4d} {unique[line]:4d}  {line}")
+    print("most distinct kernels compiled:",
+          ", ".join(f"{line} {n}" for line, n in unique.most_common(8)))
     seen = collections.defaultdict(set)
     for kernel, body in bodies.items():
         for instr, op in re.findall(r"%(\S+) = \S+ (" + "|".join(COSTLY) + r")\(", body):

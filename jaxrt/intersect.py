@@ -70,7 +70,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
-from jaxrt.vecmath import cross, device_array, dot
+from jaxrt.vecmath import computed_once, cross, device_array, dot
 
 
 def gamma(n: int, dtype) -> Array:
@@ -370,12 +370,15 @@ class TriangleSet(NamedTuple):
         valid: (F,) bool, False for zero-area triangles, which are never hit.
         sorted_vertices: (F, 3, 3) the same vertices in the canonical order the loops test
             them in (:func:`canonical_vertices`; the hit's barycentrics refer to ``vertices``).
+        columns: twelve (F,) arrays, the winner's record one scalar per array: ``v0``, ``v1``,
+            ``v2`` (x, y, z each) and ``ng`` (:func:`finish_hit` gathers each at the winner).
     """
 
     vertices: Array
     ng: Array
     valid: Array
     sorted_vertices: Array
+    columns: tuple
 
     @property
     def num_triangles(self) -> int:
@@ -465,10 +468,15 @@ def loop_unroll(count: int) -> int:
 def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
     """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
     k = jnp.maximum(prim, 0)
-    # one gather per scalar component from a (12, F) table: under vmap each is a contiguous
-    # (N,) vector, where gathering (3, 3) rows made this step cost more than the whole loop
-    table = jnp.concatenate([geometry.vertices.reshape(-1, 9), geometry.ng], axis=1).T
-    c = [table[j][k].astype(t.dtype) for j in range(12)]
+    # one gather per scalar component, each from an (F,) array of its own: under vmap each
+    # is a contiguous (N,) vector (gathering (3, 3) rows made this step cost more than the
+    # whole loop), and the twelve are one kernel to XLA:CPU, which compiles a kernel once
+    # however many identical copies a program holds (rows of one (12, F) table were twelve,
+    # a row offset apiece). Each is stored (computed_once): fused into their consumers as
+    # XLA chose, the BSDF ray's winner was evaluated differently in a one-sample pass (whose
+    # loop XLA inlines) than in longer ones, an ulp apart in 2 of 1 024 pixels; stored, the
+    # 256² MIS pass also ran 1.11-1.17x as fast (benchmarks/README.md, "twelfth session")
+    c = [computed_once(column[k].astype(t.dtype)) for column in geometry.columns]
     return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]))
 
 
@@ -510,8 +518,11 @@ def triangle_set(triangles) -> TriangleSet:
     ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
     # sorted as stored (float64 input may be stored as float32: two vertices that round to the
     # same float32 must sort alike in every triangle that shares them)
-    return TriangleSet(vertices, device_array(ng.astype(vertices.dtype)), device_array(valid),
-                       device_array(canonical_vertices(np.asarray(vertices))))
+    ng = ng.astype(vertices.dtype)
+    record = np.concatenate([np.asarray(vertices).reshape(-1, 9), ng], axis=1)
+    return TriangleSet(vertices, device_array(ng), device_array(valid),
+                       device_array(canonical_vertices(np.asarray(vertices))),
+                       tuple(device_array(np.ascontiguousarray(c)) for c in record.T))
 
 
 def canonical_vertices(triangles: np.ndarray) -> np.ndarray:

@@ -254,6 +254,17 @@ def test_triangle_set_validation():
     assert int(h.prim[0]) == 1
 
 
+def test_triangle_set_columns_are_the_winners_record():
+    # finish_hit gathers the winner's vertices and normal from twelve (F,) columns: they must
+    # be the stored vertices (v0, v1, v2 by x, y, z) and normals, in that order
+    tris = cornell_like().astype(np.float32)
+    ts = triangle_set(tris)
+    record = np.stack([np.asarray(c) for c in ts.columns], axis=1)
+    assert len(ts.columns) == 12 and record.dtype == np.float32
+    np.testing.assert_array_equal(record[:, :9], np.asarray(ts.vertices).reshape(-1, 9))
+    np.testing.assert_array_equal(record[:, 9:], np.asarray(ts.ng))
+
+
 def _rotation(seed):
     q, _ = np.linalg.qr(np.random.default_rng(seed).standard_normal((3, 3)))
     return q
