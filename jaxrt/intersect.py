@@ -516,12 +516,13 @@ def triangle_set(triangles) -> TriangleSet:
     n64 = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
     length = np.linalg.norm(n64, axis=1, keepdims=True)
     ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
+    ng = ng.astype(vertices.dtype)
+    stored = np.asarray(vertices)
+    record = np.concatenate([stored.reshape(-1, 9), ng], axis=1)  # finish_hit's columns
     # sorted as stored (float64 input may be stored as float32: two vertices that round to the
     # same float32 must sort alike in every triangle that shares them)
-    ng = ng.astype(vertices.dtype)
-    record = np.concatenate([np.asarray(vertices).reshape(-1, 9), ng], axis=1)
     return TriangleSet(vertices, device_array(ng), device_array(valid),
-                       device_array(canonical_vertices(np.asarray(vertices))),
+                       device_array(canonical_vertices(stored)),
                        tuple(device_array(np.ascontiguousarray(c)) for c in record.T))
 
 

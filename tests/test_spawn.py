@@ -138,10 +138,8 @@ def _fold(angle_deg, scale, place, dtype, rng, n):
 
 @jax.jit
 @jax.vmap
-def _shadow_between(tris, ts_vertices, ts_ng, ts_valid, ts_sorted, ts_columns, ia, ba, ib, bb):
+def _shadow_between(tris, ts, ia, ba, ib, bb):
     """Occlusion of the segment between barycentric points of triangles ia and ib."""
-    from jaxrt.intersect import TriangleSet
-    ts = TriangleSet(ts_vertices, ts_ng, ts_valid, ts_sorted, ts_columns)
     va, vb = tris[ia], tris[ib]
     p, p_err = hit_point(va[0], va[1], va[2], ba[0], ba[1])
     q, q_err = hit_point(vb[0], vb[1], vb[2], bb[0], bb[1])
@@ -156,8 +154,7 @@ def _pairs_occluded(tris, ia, ib, rng, n, margin=0.0):
     ba = rng.dirichlet([1, 1, 1], n)[:, 1:] * (1 - margin) + margin / 3
     bb = rng.dirichlet([1, 1, 1], n)[:, 1:] * (1 - margin) + margin / 3
     rep = lambda x: np.broadcast_to(x, (n,) + np.shape(x))
-    occ = np.asarray(_shadow_between(rep(tris), rep(ts.vertices), rep(ts.ng), rep(ts.valid),
-                                     rep(ts.sorted_vertices), tuple(map(rep, ts.columns)),
+    occ = np.asarray(_shadow_between(rep(tris), jax.tree.map(rep, ts),
                                      np.full(n, ia, np.int32), ba.astype(dtype),
                                      np.full(n, ib, np.int32), bb.astype(dtype)))
     return occ, ba, bb
