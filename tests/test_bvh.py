@@ -178,6 +178,28 @@ def test_compacted_batches_match_brute_force(monkeypatch):
     np.testing.assert_array_equal(np.asarray(one_ray.prim), [out["brute"].prim[0]] * 2)
 
 
+@pytest.mark.parametrize("n", [1, 7, 300, 1000, 4096, 16384])
+def test_running_lanes_is_nonzero(n):
+    """The compaction's prefix count (two float32 matrix products) gives jnp.nonzero's indices
+    for masks of every density, sizes that are not a multiple of its block, a full cap and
+    no lane at all, and under vmap (a batch of BVHs compacts per BVH)."""
+    from jaxrt.bvh import running_lanes
+
+    rng = np.random.default_rng(n)
+    cap = max(1, n // 4)
+    masks = [np.zeros(n, bool), np.arange(n) < cap, np.arange(n) >= n - cap]
+    for p in (0.01, 0.1, 0.25):
+        m = rng.random(n) < p
+        m[np.flatnonzero(m)[cap:]] = False  # at most cap lanes run, as the loop guarantees
+        masks.append(m)
+    for m in masks:
+        want = np.asarray(jnp.nonzero(jnp.asarray(m), size=cap, fill_value=0)[0])
+        np.testing.assert_array_equal(np.asarray(running_lanes(jnp.asarray(m), cap)), want)
+    got = jax.jit(jax.vmap(lambda m: running_lanes(m, cap)))(jnp.asarray(np.stack(masks)))
+    want = [np.asarray(jnp.nonzero(jnp.asarray(m), size=cap, fill_value=0)[0]) for m in masks]
+    np.testing.assert_array_equal(np.asarray(got), np.stack(want))
+
+
 @pytest.mark.parametrize("name", list(MESHES))
 def test_build_is_valid(name):
     tri = MESHES[name]
