@@ -46,9 +46,9 @@ from jaxrt.intersect import (
     RayFrame,
     canonical_vertices,
     gamma,
+    host_triangles,
     intersect_triangle_t,
     ray_frame,
-    triangle_set,
     winner_hit,
 )
 from jaxrt.vecmath import device_array
@@ -117,13 +117,13 @@ class BVH:
 def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
     """Move a host :class:`FlatBVH` to device arrays (floats in JAX's default precision)."""
     dtype = jnp.result_type(float)
-    # Normals and zero-area flags exactly as the brute-force TriangleSet computes them.
-    tset = triangle_set(flat.triangles)
-    # on the host, then one copy per array (jnp operations would compile a program each)
-    tri = np.asarray(tset.vertices).astype(dtype)
+    # Normals and zero-area flags exactly as the brute-force TriangleSet computes them, on the
+    # host, then one copy per array (jnp operations would compile a program each)
+    stored, ng, valid = host_triangles(flat.triangles)
+    tri = stored.astype(dtype)
     # Zero-area triangles never hit: collapse them to a point, whose determinant is exactly
     # 0 in the watertight test, instead of testing a flag per triangle.
-    tri = np.where(np.asarray(tset.valid)[:, None, None], tri, tri[:, :1])
+    tri = np.where(valid[:, None, None], tri, tri[:, :1])
     tri_sorted = canonical_vertices(tri)
     box = np.concatenate([flat.box_lo, flat.box_hi], axis=1)
     as_int = lambda a: device_array(a, jnp.int32)
@@ -132,7 +132,7 @@ def bvh_from_flat(flat: FlatBVH, leaf_size: int) -> BVH:
         as_int(flat.skip), as_int(flat.leaf_start), as_int(flat.leaf_count),
         tuple(device_array(c) for c in tri.reshape(-1, 9).T),
         tuple(device_array(c) for c in tri_sorted.reshape(-1, 9).T), as_int(flat.prim),
-        device_array(tset.ng, dtype), leaf_size,
+        device_array(ng, dtype), leaf_size,
     )
 
 

@@ -66,6 +66,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
@@ -480,6 +481,43 @@ def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) ->
     return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]))
 
 
+def host_triangles(triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Validate triangles and derive, on the host, what the intersection kernels store.
+
+    Args:
+        triangles: (F, 3, 3) array-like, ``triangles[f, k]`` the k-th vertex of triangle f.
+    Returns:
+        ``(stored, ng, valid)``: the vertices (F, 3, 3) in the dtype the device holds them in
+        (float32 unless x64), the unit geometric normals ``(v1 − v0) × (v2 − v0) / ‖…‖`` (F, 3)
+        in that dtype (formed in float64), and (F,) bool, False for zero area (a zero cross
+        product in the input's precision; such triangles are never hit). Shared by
+        :func:`triangle_set` and :func:`jaxrt.bvh.bvh_from_flat`, which need no device copy to
+        compute them.
+    Raises:
+        ValueError: wrong shape, no triangles, or a non-finite vertex (names the triangle).
+    """
+    tri = np.asarray(triangles)
+    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
+        raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
+    if tri.shape[0] == 0:
+        raise ValueError("triangle set is empty")
+    if not np.issubdtype(tri.dtype, np.floating):
+        tri = tri.astype(np.float32)
+    bad = ~np.all(np.isfinite(tri), axis=(1, 2))
+    if np.any(bad):
+        idx = np.flatnonzero(bad)
+        raise ValueError(f"triangle {idx[0]} has a non-finite vertex {tri[idx[0]].tolist()}"
+                         f" ({idx.size} bad triangle(s) in all)")
+    stored = tri.astype(jax.dtypes.canonicalize_dtype(tri.dtype))
+    tri64 = tri.astype(np.float64)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    valid = np.any(n != 0, axis=1)
+    n64 = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
+    length = np.linalg.norm(n64, axis=1, keepdims=True)
+    ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
+    return stored, ng.astype(stored.dtype), valid
+
+
 def triangle_set(triangles) -> TriangleSet:
     """Validate triangles on the host and pack them for brute-force intersection.
 
@@ -494,30 +532,11 @@ def triangle_set(triangles) -> TriangleSet:
             the index as a float32; build a BVH), or a non-finite vertex (names the triangle).
     """
     tri = np.asarray(triangles)
-    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-        raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
-    if tri.shape[0] == 0:
-        raise ValueError("triangle set is empty")
-    if tri.shape[0] >= MAX_BRUTE_FORCE:
+    if tri.ndim == 3 and tri.shape[0] >= MAX_BRUTE_FORCE:
         raise ValueError(f"{tri.shape[0]} triangles are too many to test by brute force "
                          f"(at most {MAX_BRUTE_FORCE - 1}); use a BVH (accel='bvh')")
-    if not np.issubdtype(tri.dtype, np.floating):
-        tri = tri.astype(np.float32)
-    bad = ~np.all(np.isfinite(tri), axis=(1, 2))
-    if np.any(bad):
-        idx = np.flatnonzero(bad)
-        raise ValueError(f"triangle {idx[0]} has a non-finite vertex {tri[idx[0]].tolist()}"
-                         f" ({idx.size} bad triangle(s) in all)")
-    vertices = device_array(tri)
-    tri64 = tri.astype(np.float64)
-    # normal and degeneracy from the stored (rounded) vertices, as the kernel sees them
-    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    valid = np.any(n != 0, axis=1)
-    n64 = np.cross(tri64[:, 1] - tri64[:, 0], tri64[:, 2] - tri64[:, 0])
-    length = np.linalg.norm(n64, axis=1, keepdims=True)
-    ng = np.where(valid[:, None], n64 / np.where(length > 0, length, 1.0), 0.0)
-    ng = ng.astype(vertices.dtype)
-    stored = np.asarray(vertices)
+    stored, ng, valid = host_triangles(tri)
+    vertices = device_array(stored)
     record = np.concatenate([stored.reshape(-1, 9), ng], axis=1)  # finish_hit's columns
     # sorted as stored (float64 input may be stored as float32: two vertices that round to the
     # same float32 must sort alike in every triangle that shares them)

@@ -178,6 +178,22 @@ def test_compacted_batches_match_brute_force(monkeypatch):
     np.testing.assert_array_equal(np.asarray(one_ray.prim), [out["brute"].prim[0]] * 2)
 
 
+def test_bvh_is_not_bound_by_the_brute_force_limit(monkeypatch):
+    """Brute force refuses 2^24 triangles or more (its loop carries the index as a float32);
+    a BVH, the way out the error names, must not inherit that limit (patched down here)."""
+    import jaxrt.intersect as isect
+
+    tri = MESHES["icosphere"]
+    o, d, t_max = rays(tri)
+    want = _queries(build_bvh(tri), triangle_set(tri), o, d, t_max)
+    monkeypatch.setattr(isect, "MAX_BRUTE_FORCE", len(tri) // 2)
+    with pytest.raises(ValueError, match="use a BVH"):
+        triangle_set(tri)
+    got = jax.jit(jax.vmap(closest_hit, (None, 0, 0, 0)))(build_bvh(tri), o, d, t_max)
+    np.testing.assert_array_equal(np.asarray(got.prim), np.asarray(want["bvh"].prim))
+    np.testing.assert_array_equal(np.asarray(got.t), np.asarray(want["bvh"].t))
+
+
 @pytest.mark.parametrize("n", [1, 7, 300, 1000, 4096, 16384])
 def test_running_lanes_is_nonzero(n):
     """The compaction's prefix count (two float32 matrix products) gives jnp.nonzero's indices
