@@ -66,24 +66,25 @@ class FlatBVH(NamedTuple):
 
 
 def validate_triangles(triangles) -> np.ndarray:
-    """Check a triangle array (F, 3, 3) and return it as a numpy array.
+    """Check a triangle array (F, 3, 3) and return it as a floating numpy array.
 
+    The one check of triangles given by a user, for brute force
+    (:func:`jaxrt.intersect.host_triangles`) and the BVH (:func:`build_flat_bvh`) alike.
     Raises ValueError on a wrong shape, an empty set, or a non-finite vertex (naming the
-    first offending triangle index).
+    first offending triangle and its vertices).
     """
     tri = np.asarray(triangles)
     if tri.ndim != 3 or tri.shape[1:] != (3, 3):
         raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
     if tri.shape[0] == 0:
-        raise ValueError("triangles is empty: a BVH needs at least one triangle")
+        raise ValueError("triangles is empty: there is nothing to intersect")
     if not np.issubdtype(tri.dtype, np.floating):
         tri = tri.astype(np.float32)
     bad = ~np.isfinite(tri).all(axis=(1, 2))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
-        raise ValueError(
-            f"triangle {i} has a non-finite vertex ({int(bad.sum())} bad triangles in total)"
-        )
+        raise ValueError(f"triangle {i} has a non-finite vertex {tri[i].tolist()} "
+                         f"({int(bad.sum())} bad triangle(s) in all)")
     return tri
 
 

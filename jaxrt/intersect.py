@@ -71,6 +71,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
+from jaxrt.bvh_build import validate_triangles
 from jaxrt.vecmath import computed_once, cross, device_array, dot
 
 
@@ -496,18 +497,7 @@ def host_triangles(triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     Raises:
         ValueError: wrong shape, no triangles, or a non-finite vertex (names the triangle).
     """
-    tri = np.asarray(triangles)
-    if tri.ndim != 3 or tri.shape[1:] != (3, 3):
-        raise ValueError(f"triangles must have shape (F, 3, 3), got {tri.shape}")
-    if tri.shape[0] == 0:
-        raise ValueError("triangle set is empty")
-    if not np.issubdtype(tri.dtype, np.floating):
-        tri = tri.astype(np.float32)
-    bad = ~np.all(np.isfinite(tri), axis=(1, 2))
-    if np.any(bad):
-        idx = np.flatnonzero(bad)
-        raise ValueError(f"triangle {idx[0]} has a non-finite vertex {tri[idx[0]].tolist()}"
-                         f" ({idx.size} bad triangle(s) in all)")
+    tri = validate_triangles(triangles)
     stored = tri.astype(jax.dtypes.canonicalize_dtype(tri.dtype))
     tri64 = tri.astype(np.float64)
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])

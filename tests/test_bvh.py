@@ -263,11 +263,17 @@ def test_sah_beats_median_on_clustered_input():
         (np.zeros((0, 3, 3), np.float32), "empty"),
         (np.zeros((4, 3), np.float32), "shape"),
         (np.zeros((3, 3, 2), np.float32), "shape"),
+        (np.where(np.arange(9).reshape(1, 3, 3) == 4, np.inf, 0.5), "triangle 0"),
     ],
 )
 def test_build_rejects_bad_input(bad, match):
-    with pytest.raises(ValueError, match=match):
-        build_bvh(bad)
+    # one check of the user's triangles for both accelerations: the same message
+    messages = []
+    for build in (build_bvh, triangle_set):
+        with pytest.raises(ValueError, match=match) as err:
+            build(bad)
+        messages.append(str(err.value))
+    assert messages[0] == messages[1]
 
 
 @pytest.mark.parametrize("value", [np.nan, np.inf])
