@@ -73,7 +73,7 @@ def truncated_sample(level: int):
         return camera_sample
 
     def sample(scene, est, pixel, index, seed, sampler="independent", spp=1):
-        s = terms_mod.Stream(sampler, seed, pixel, index, spp)
+        s = terms_mod.Stream.of(sampler, seed, pixel, index, spp)
         dtype = scene.triangles.dtype
         if level == 0:
             return jnp.broadcast_to(pixel.astype(dtype) * 1e-9, (3,))
@@ -128,8 +128,9 @@ def compile_level(scene, est, level: int):
         # a truncated level runs whole in the second half, the first half returns a stub
         sample = truncated_sample(level)
         ps.camera_hit = lambda scene, pixel, s: (pixel, s.index)
+        # (the stub's hit is the pixel; the pass's seed is 0, below)
         ps.camera_radiance = lambda scene, est, hit, wo, s: sample(
-            scene, est, s.pixel, s.index, s.seed, s.kind, s.spp)
+            scene, est, hit, s.index, jnp.uint32(0), s.kind, s.spp)
     try:
         static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
                       batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)

@@ -380,7 +380,7 @@ def camera_sample(scene: Scene, est: Estimator, pixel: Array, index: Array, seed
     ``L = L_e(first hit, −d) + L_direct(first hit, −d)``: emitters seen by the camera add
     their own radiance; surfaces add the estimator's direct illumination.
     """
-    s = Stream(sampler, seed, pixel, index, spp)
+    s = Stream.of(sampler, seed, pixel, index, spp)
     hit, wo = camera_hit(scene, pixel, s)
     return camera_radiance(scene, est, hit, wo, s)
 
@@ -462,7 +462,7 @@ def samples_at(scene: Scene, estimator: str | Estimator, p, n, wo, material: int
 @jit_with_options(static_argnames=("est", "sampler", "num_samples"))
 def _estimate_at(scene, est, hit, wo, seed, sampler, num_samples):
     def one(k):
-        s = Stream(sampler, seed, jnp.uint32(0), k, num_samples)
+        s = Stream.of(sampler, seed, jnp.uint32(0), k, num_samples)
         return shade(scene, est, hit, wo, s)
 
     return jax.vmap(one)(jnp.arange(num_samples, dtype=jnp.uint32))

@@ -28,6 +28,11 @@ Three streams (:data:`SamplerKind`):
 Floats: the top 24 bits of a uint32 ``h`` give ``u = (h >> 8) · 2^-24 ≤ 1 − 2^-24 < 1``, exact
 in float32. The output dtype is JAX's default float (float32, or float64 under
 ``jax_enable_x64``); the *values* are the same multiples of ``2^-24`` in both modes.
+
+Keys: every hash of a pixel's stream starts from ``pixel_key(seed, pixel) = H(pixel ^
+H(seed))``. A loop over a pixel's samples forms it once and draws with :func:`keyed_1d` /
+:func:`keyed_2d` (the same values as :func:`sample_1d` / :func:`sample_2d`); the render
+passes do.
 """
 
 from __future__ import annotations
@@ -74,14 +79,31 @@ def lowbias32(x: Array) -> Array:
     return x ^ (x >> 16)
 
 
+def pixel_key(seed, pixel) -> Array:
+    """``H(pixel ^ H(seed))``: the part of every hash of a pixel's stream that depends on
+    ``(seed, pixel)`` alone (uint32, the shape of ``pixel``).
+
+    A loop over a pixel's samples computes it once, before the loop, and draws its variates
+    with :func:`keyed_1d` / :func:`keyed_2d`: the same values as :func:`sample_1d` /
+    :func:`sample_2d`, two hash rounds fewer per variate in the loop's program (the render
+    passes do; what it saves: benchmarks/README.md, "fourteenth session").
+    """
+    return lowbias32(_u32(pixel) ^ lowbias32(seed))
+
+
+def keyed_hash(key, index, dim) -> Array:
+    """``H(dim ^ H(index ^ key))`` for a :func:`pixel_key` ``key``: :func:`hash4`'s last two
+    rounds."""
+    return lowbias32(_u32(dim) ^ lowbias32(_u32(index) ^ _u32(key)))
+
+
 def hash4(seed, pixel, index, dim) -> Array:
     """Hash of four integers to uint32: ``H(dim ^ H(index ^ H(pixel ^ H(seed))))``.
 
     Each step is a bijection of its innermost argument, so for fixed ``(seed, pixel, dim)``
     distinct indices give distinct hashes. Scalars (seed, dim) are hoisted by XLA.
     """
-    h = lowbias32(_u32(pixel) ^ lowbias32(seed))
-    return lowbias32(_u32(dim) ^ lowbias32(_u32(index) ^ h))
+    return keyed_hash(pixel_key(seed, pixel), index, dim)
 
 
 def uint_to_unit_float(h: Array) -> Array:
@@ -98,7 +120,11 @@ def uint_to_unit_float(h: Array) -> Array:
 
 def independent_1d(seed, pixel, index, dim) -> Array:
     """Independent uniform variate ``u ∈ [0, 1)`` for ``(seed, pixel, index, dim)``."""
-    return uint_to_unit_float(hash4(seed, pixel, index, dim))
+    return _independent(pixel_key(seed, pixel), index, dim)
+
+
+def _independent(key, index, dim) -> Array:
+    return uint_to_unit_float(keyed_hash(key, index, dim))
 
 
 # ---------------------------------------------------------------------------- stratified
@@ -148,19 +174,24 @@ def _jittered(stratum: Array, jitter_hash: Array, n: int) -> Array:
     return jnp.minimum(u, jnp.nextafter(jnp.ones_like(u), jnp.zeros_like(u)))
 
 
-def _stratum_key(seed, pixel, index, dim, spp: int) -> tuple[Array, Array]:
-    """Index within the current pass of ``spp`` samples, and the permutation key of that pass."""
+def _stratum_key(pkey, index, dim, spp: int) -> tuple[Array, Array]:
+    """Index within the current pass of ``spp`` samples, and the permutation key of that pass
+    (``pkey``: the pixel's :func:`pixel_key`)."""
     index = _u32(index)
     pass_ = index // _c(spp)
     # A fresh permutation per pass of spp samples, so index ≥ spp keeps being stratified.
-    key = hash4(seed, pixel, pass_ ^ _c(0xA511E9B3), dim)
+    key = keyed_hash(pkey, pass_ ^ _c(0xA511E9B3), dim)
     return index % _c(spp), key
 
 
 def stratified_1d(seed, pixel, index, dim, spp: int) -> Array:
     """Jittered 1D stratum sample: ``(π(index mod spp) + ξ) / spp`` with hashed ``π`` and ``ξ``."""
-    k, key = _stratum_key(seed, pixel, index, dim, spp)
-    return _jittered(permute(k, spp, key), hash4(seed, pixel, index, dim), spp)
+    return _stratified_1d(pixel_key(seed, pixel), index, dim, spp)
+
+
+def _stratified_1d(pkey, index, dim, spp: int) -> Array:
+    k, key = _stratum_key(pkey, index, dim, spp)
+    return _jittered(permute(k, spp, key), keyed_hash(pkey, index, dim), spp)
 
 
 def _grid(spp: int) -> tuple[int, int]:
@@ -171,11 +202,15 @@ def _grid(spp: int) -> tuple[int, int]:
 
 def stratified_2d(seed, pixel, index, dim, spp: int) -> Array:
     """Jittered 2D sample (2,) for dimensions ``(dim, dim + 1)`` on an ``nx × ny`` grid."""
+    return _stratified_2d(pixel_key(seed, pixel), index, dim, spp)
+
+
+def _stratified_2d(pkey, index, dim, spp: int) -> Array:
     nx, ny = _grid(spp)
-    k, key = _stratum_key(seed, pixel, index, dim, spp)
+    k, key = _stratum_key(pkey, index, dim, spp)
     cell = permute(k, nx * ny, key)
-    return jnp.stack([_jittered(cell % _c(nx), hash4(seed, pixel, index, dim), nx),
-                      _jittered(cell // _c(nx), hash4(seed, pixel, index, _u32(dim) + 1), ny)],
+    return jnp.stack([_jittered(cell % _c(nx), keyed_hash(pkey, index, dim), nx),
+                      _jittered(cell // _c(nx), keyed_hash(pkey, index, _u32(dim) + 1), ny)],
                      axis=-1)
 
 
@@ -228,14 +263,18 @@ def sobol_2d_bits(index: Array) -> tuple[Array, Array]:
 def sobol_1d(seed, pixel, index, dim) -> Array:
     """Padded Owen-scrambled Sobol value of dimension ``dim`` (component ``dim mod 2`` of pair
     ``dim div 2``), for ``(seed, pixel, index)``."""
+    return _sobol_1d(pixel_key(seed, pixel), index, dim)
+
+
+def _sobol_1d(pkey, index, dim) -> Array:
     dim = _u32(dim)
     pair, comp = dim >> 1, dim & _c(1)
     # Shuffle the index per (pixel, pair): decorrelates pixels and pairs, keeps nets intact.
-    shuffled = owen_scramble(index, hash4(seed, pixel, 0x5BD1E995, pair))
+    shuffled = owen_scramble(index, keyed_hash(pkey, 0x5BD1E995, pair))
     b0, b1 = sobol_2d_bits(shuffled)
     rev = jnp.where(comp == 0, b0, b1)
     # rev is already bit-reversed: scramble = rev(LK(rev(x))) = rev(LK(rev_bits_value)).
-    x = reverse_bits(_laine_karras(rev, hash4(seed, pixel, 0x68E31DA4, dim)))
+    x = reverse_bits(_laine_karras(rev, keyed_hash(pkey, 0x68E31DA4, dim)))
     return uint_to_unit_float(x)
 
 
@@ -256,12 +295,7 @@ def sample_1d(kind: SamplerKind, seed, pixel, index, dim, spp: int = 1) -> Array
     the integer arguments may be traced and broadcast elementwise. Returns the default float
     dtype (float32; float64 under x64).
     """
-    _check(kind, spp)
-    if kind == "independent":
-        return independent_1d(seed, pixel, index, dim)
-    if kind == "stratified":
-        return stratified_1d(seed, pixel, index, dim, spp)
-    return sobol_1d(seed, pixel, index, dim)
+    return keyed_1d(kind, pixel_key(seed, pixel), index, dim, spp)
 
 
 def sample_2d(kind: SamplerKind, seed, pixel, index, dim, spp: int = 1) -> Array:
@@ -270,9 +304,26 @@ def sample_2d(kind: SamplerKind, seed, pixel, index, dim, spp: int = 1) -> Array
     ``"stratified"`` stratifies the pair jointly on an ``nx × ny`` grid; ``"sobol"`` returns the
     pair's (0,2)-sequence when ``dim`` is even; ``"independent"`` two independent values.
     """
+    return keyed_2d(kind, pixel_key(seed, pixel), index, dim, spp)
+
+
+def keyed_1d(kind: SamplerKind, key, index, dim, spp: int = 1) -> Array:
+    """:func:`sample_1d` from the pixel's :func:`pixel_key` ``key = pixel_key(seed, pixel)``:
+    the same variate, bit for bit; for loops over a pixel's samples, which compute the key
+    once."""
+    _check(kind, spp)
+    if kind == "independent":
+        return _independent(key, index, dim)
+    if kind == "stratified":
+        return _stratified_1d(key, index, dim, spp)
+    return _sobol_1d(key, index, dim)
+
+
+def keyed_2d(kind: SamplerKind, key, index, dim, spp: int = 1) -> Array:
+    """:func:`sample_2d` from the pixel's :func:`pixel_key` (as :func:`keyed_1d`)."""
     _check(kind, spp)
     if kind == "stratified":
-        return stratified_2d(seed, pixel, index, dim, spp)
+        return _stratified_2d(key, index, dim, spp)
     d = _u32(dim)
-    return jnp.stack([sample_1d(kind, seed, pixel, index, d, spp),
-                      sample_1d(kind, seed, pixel, index, d + _c(1), spp)], axis=-1)
+    return jnp.stack([keyed_1d(kind, key, index, d, spp),
+                      keyed_1d(kind, key, index, d + _c(1), spp)], axis=-1)

@@ -34,19 +34,28 @@ from jaxrt.vecmath import computed_once, to_local, to_world
 
 
 class Stream(NamedTuple):
-    """The sample stream of one camera sample: ``u(dim)`` for the fixed (seed, pixel, index)."""
+    """The sample stream of one camera sample: ``u(dim)`` for a fixed (seed, pixel, index).
+
+    It holds the pixel's key, :func:`jaxrt.sampler.pixel_key` of the seed and the pixel,
+    rather than the two: a loop over a pixel's samples forms the key once, outside the loop
+    (:func:`of` forms it for one stream). The variates are :func:`jaxrt.sampler.sample_1d`'s.
+    """
 
     kind: str
-    seed: Array
-    pixel: Array
+    key: Array
     index: Array
     spp: int
 
+    @classmethod
+    def of(cls, kind: str, seed, pixel, index, spp: int) -> Stream:
+        """The stream of sample ``index`` of ``pixel`` for ``seed``."""
+        return cls(kind, smp.pixel_key(seed, pixel), index, spp)
+
     def u1(self, dim: int) -> Array:
-        return smp.sample_1d(self.kind, self.seed, self.pixel, self.index, dim, self.spp)
+        return smp.keyed_1d(self.kind, self.key, self.index, dim, self.spp)
 
     def u2(self, dim) -> Array:
-        return smp.sample_2d(self.kind, self.seed, self.pixel, self.index, dim, self.spp)
+        return smp.keyed_2d(self.kind, self.key, self.index, dim, self.spp)
 
 
 class ShadingPoint(NamedTuple):

@@ -12,6 +12,7 @@ import pytest
 from jaxrt import scenes
 from jaxrt.estimators import DIRECT_ESTIMATORS
 from jaxrt.render import _mean_and_error, render
+from jaxrt.sampler import pixel_key
 
 
 @pytest.fixture(scope="module")
@@ -101,10 +102,11 @@ def test_nonfinite_samples_are_counted_not_kept(box16, monkeypatch):
     import jaxrt.passes as R
 
     real = R.camera_radiance  # what the pass shades each camera sample's hit with
+    pixel_5 = pixel_key(0, 5)  # the stream key of pixel 5 at seed 0 (render's default)
 
     def poisoned(scene, est, hit, wo, s):
         v = real(scene, est, hit, wo, s)
-        return jnp.where((s.pixel == 5) & (s.index == 1), jnp.nan, v)
+        return jnp.where((s.key == pixel_5) & (s.index == 1), jnp.nan, v)
 
     monkeypatch.setattr(R, "camera_radiance", poisoned)
     R.render_tiles.clear_cache()
