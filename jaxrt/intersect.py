@@ -75,13 +75,14 @@ from jaxrt.bvh_build import validate_triangles
 from jaxrt.vecmath import computed_once, cross, device_array, dot
 
 
-def gamma(n: int, dtype) -> Array:
+def gamma(n: int, dtype, xp=jnp) -> Array:
     """pbrt's ``γ_n = n ε / (1 − n ε)`` with ``ε`` half the machine epsilon of ``dtype``.
 
-    Bounds the relative error of ``n`` successive roundings (pbrt-v4 §6.8.1).
+    Bounds the relative error of ``n`` successive roundings (pbrt-v4 §6.8.1). ``xp``:
+    ``jax.numpy`` in a program, ``numpy`` on the host.
     """
-    eps = jnp.asarray(jnp.finfo(dtype).eps / 2, dtype)
-    n = jnp.asarray(n, dtype)
+    eps = xp.asarray(jnp.finfo(dtype).eps / 2, dtype)
+    n = xp.asarray(n, dtype)
     return n * eps / (1 - n * eps)
 
 
@@ -419,19 +420,20 @@ class TriangleSet(NamedTuple):
         return lax.fori_loop(0, verts.shape[0], body, frame.valid & False,
                              unroll=loop_unroll(verts.shape[0]))
 
-    def loop_tables(self, dtype) -> tuple[Array, Array]:
+    def loop_tables(self, dtype, xp=jnp) -> tuple[Array, Array]:
         """Sorted vertices (F', 3, 3) and validity (F',) as the loops read them, padded with
-        never-hit triangles to a multiple of the unroll factor ``F' = 4 ⌈F/4⌉``.
+        never-hit triangles to a multiple of the unroll factor ``F' = 4 ⌈F/4⌉`` (``xp``:
+        ``jax.numpy`` in a program, ``numpy`` on the host).
 
         A remainder after the unrolled iterations cost more than whole iterations in the
         render: shadow rays over 22 triangles ran the 256² MIS pass 0.935× as fast as over
         32, over the same 22 padded to 24 1.134× (paired, one process, 14 rounds).
         """
-        verts, valid = self.sorted_vertices.astype(dtype), self.valid
+        verts, valid = xp.asarray(self.sorted_vertices).astype(dtype), xp.asarray(self.valid)
         pad = -verts.shape[0] % UNROLL
         if pad:
-            verts = jnp.concatenate([verts, jnp.zeros((pad, 3, 3), dtype)])
-            valid = jnp.concatenate([valid, jnp.zeros(pad, valid.dtype)])
+            verts = xp.concatenate([verts, xp.zeros((pad, 3, 3), dtype)])
+            valid = xp.concatenate([valid, xp.zeros(pad, valid.dtype)])
         return verts, valid
 
 

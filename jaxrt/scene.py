@@ -46,7 +46,7 @@ from jaxrt.convex import convex_any_hit, convex_closest_hit
 from jaxrt.derivatives import nondifferentiable
 from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma
 from jaxrt.occluders import shadow_blockers
-from jaxrt.shared_origin import closest_hit_from_origin
+from jaxrt.shared_origin import closest_hit_from_origin, eye_planes
 from jaxrt.spawn import short_of
 from jaxrt.vecmath import device_array, dot, normalize
 
@@ -123,6 +123,13 @@ class Scene:
     convex: the convex bodies shadow rays and closest hits test by their face planes
         (:class:`jaxrt.convex.ConvexBodies`, whose triangles ``occluders`` and closest hits
         leave out), or None.
+    eye_planes: the brute-force triangles' edge planes through the camera's eye, which the
+        camera rays are tested by (:func:`jaxrt.shared_origin.eye_planes`, formed on the
+        host), or None (a BVH, or arrays traced when the scene was made: the program forms
+        them).
+
+    ``occluders``, ``convex`` and ``eye_planes`` are derived from the other fields: change
+    the scene with :meth:`replace`, which forms them again.
     """
 
     geometry: Any
@@ -135,6 +142,7 @@ class Scene:
     material_kinds: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     occluders: Any = None
     convex: Any = None
+    eye_planes: Any = None
 
     @property
     def width(self) -> int:
@@ -151,6 +159,8 @@ class Scene:
     def replace(self, **changes) -> Scene:
         """A copy with some fields replaced (e.g. a new camera or new materials).
 
+        ``eye_planes`` are formed again for a new ``camera`` or ``geometry`` unless given.
+
         ``occluders`` and ``convex`` belong to the scene's triangles, materials and lights: a
         copy with new ``geometry``, ``triangles``, ``prim_material`` or ``lights`` finds them
         again
@@ -164,6 +174,8 @@ class Scene:
             occluders, convex = shadow_blockers(new.geometry, new.triangles, new.lights,
                                                 new.prim_material)
             new = dataclasses.replace(new, occluders=occluders, convex=convex)
+        if "eye_planes" not in changes and {"geometry", "camera"} & set(changes):
+            new = dataclasses.replace(new, eye_planes=eye_planes(new.geometry, new.camera))
         return new
 
     def summary(self) -> str:
@@ -258,6 +270,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         **dict(zip(("occluders", "convex"), shadow_blockers(geometry, stored, light_table,
                                                                     prim_material),
                    strict=True)),
+        eye_planes=eye_planes(geometry, camera),
     )
 
 
@@ -323,9 +336,10 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
     cost less than the planes (the MIS pass ran 0.88× as fast with its camera rays clipped).
     Two static options specialise the query without changing what the caller uses of it:
 
-    - ``shared_origin``: every ray of the batch starts at ``o`` (a pinhole camera's eye;
-      ``o`` unbatched under ``vmap``), so brute-force triangles are tested by their edge
-      planes through it (:mod:`jaxrt.shared_origin`); a BVH ignores it.
+    - ``shared_origin``: every ray of the batch starts at ``o``, the camera's eye (``o``
+      unbatched under ``vmap``), so brute-force triangles are tested by their edge
+      planes through it (:mod:`jaxrt.shared_origin`: ``scene.eye_planes``, or formed in the
+      program); a BVH ignores it.
     - ``emission_only``: the caller (a direct estimator's BSDF ray from a surface point)
       uses only the emitter the ray reaches: the emitted radiance, the light and its point.
       Then only the triangles that can block a shadow ray (``scene.occluders``) and the
@@ -349,7 +363,7 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
     if prims is not None:  # the rows tested, gathered once per batch of rays
         geometry = jax.tree.map(lambda a: a[prims], geometry)
     if shared_origin and isinstance(geometry, TriangleSet):
-        hit = closest_hit_from_origin(geometry, o, d, t_max)
+        hit = closest_hit_from_origin(geometry, o, d, t_max, scene.eye_planes)
     else:
         hit = closest_hit(geometry, o, d, t_max)
     if prims is not None:  # back to the scene's triangle indices
@@ -549,6 +563,7 @@ def guard_geometry(scene: Scene) -> Scene:
                                          for f in ("eye", "frame", "tan_half_fov", "aspect")})
     return scene.replace(
         occluders=scene.occluders,  # the same triangles and lights, guarded
+        eye_planes=scene.eye_planes,  # and the same camera
         geometry=jax.tree.map(lambda a: guard(a, "the scene geometry (acceleration structure)"),
                               scene.geometry),
         triangles=guard(scene.triangles, "the scene's triangle vertices"),

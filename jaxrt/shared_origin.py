@@ -4,7 +4,9 @@ Every camera ray starts at the eye ``o``. A triangle seen from ``o`` is three pl
 ``o`` (one per edge) and the plane of the triangle, and those do not depend on the ray: the
 edge normals ``N_ab = (a − o) × (b − o)`` and the volume ``V = (v0 − o) · N_12`` are formed
 once per batch of rays (:func:`origin_planes`; under ``vmap`` an unbatched origin leaves them
-unbatched, so XLA computes them once per step, not once per lane), and each triangle test is
+unbatched, so XLA computes them once per step, not once per lane), or once per scene on the
+host (:func:`eye_planes`, which :class:`~jaxrt.scene.Scene` carries for its camera: the render
+pass then compiles none of the table's ten kernels), and each triangle test is
 then four dot products and six comparisons (:func:`closest_hit_from_origin`), where the
 watertight test permutes, shears and bounds every triangle for every ray. On the 256²
 Cornell box the camera rays' loop took 14.3 ms per 8-spp pass instead of 26.6, and the MIS
@@ -53,19 +55,24 @@ distance 1, a triangle of size 0.01 is seen edge-on within ~4e-4 rad) and is nev
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from jaxrt.intersect import Hit, TriangleSet, closest_loop, finish_hit, gamma, ray_frame
+from jaxrt.vecmath import device_array
 
 
-def origin_planes(geometry: TriangleSet, origin: Array) -> Array:
+def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
     """Each triangle's edge planes through ``origin`` and its volume seen from it.
 
     Args:
         geometry: the triangles (their canonically sorted vertices, padded as the loops read
             them: :meth:`~jaxrt.intersect.TriangleSet.loop_tables`).
-        origin: (3,) the rays' common origin.
+        origin: (3,) the rays' common origin; the table is formed in its dtype.
+        xp: ``jax.numpy`` (in a program) or ``numpy`` (on the host, :func:`eye_planes`): the
+            same expression, each operation rounded once either way.
     Returns:
         (F', 15): per triangle ``N_12``, ``N_02``, ``N_01`` (3 components each), the three
         edges' rounding margins for a direction of unit ``‖d‖₁``, and ``n / V`` (3); ``n / V``
@@ -73,39 +80,58 @@ def origin_planes(geometry: TriangleSet, origin: Array) -> Array:
         the origin to tell its side (never hit; see the module notes).
     """
     dtype = origin.dtype
-    verts, valid = geometry.loop_tables(dtype)
+    verts, valid = geometry.loop_tables(dtype, xp)
     rel = verts - origin  # (F', 3, 3): v_k − o, each vertex of each triangle
     # edges (v1, v2), (v0, v2), (v0, v1): the earlier vertex first in the canonical order
-    a, b = rel[:, jnp.array([1, 0, 0])], rel[:, jnp.array([2, 2, 1])]  # (F', 3 edges, 3)
+    a, b = rel[:, xp.array([1, 0, 0])], rel[:, xp.array([2, 2, 1])]  # (F', 3 edges, 3)
     # one elementwise expression for every edge of every triangle (watertight: module notes)
-    normals = jnp.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
+    normals = xp.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
                          a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
                          a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
     # |N| ≤ |a| ×ₐ |b| componentwise: bounds each normal and the rounding of its computation
-    aa, bb = jnp.abs(a), jnp.abs(b)
-    n_abs = jnp.stack([aa[..., 1] * bb[..., 2] + aa[..., 2] * bb[..., 1],
+    aa, bb = xp.abs(a), xp.abs(b)
+    n_abs = xp.stack([aa[..., 1] * bb[..., 2] + aa[..., 2] * bb[..., 1],
                        aa[..., 2] * bb[..., 0] + aa[..., 0] * bb[..., 2],
                        aa[..., 0] * bb[..., 1] + aa[..., 1] * bb[..., 0]], axis=-1)
-    norm_abs = jnp.sqrt(jnp.sum(n_abs * n_abs, axis=-1))  # (F', 3 edges)
+    norm_abs = xp.sqrt(xp.sum(n_abs * n_abs, axis=-1))  # (F', 3 edges)
     # |d · N − d · N_exact| ≤ ‖d‖₁ · γ₈ ‖|a| ×ₐ |b|‖₂ (module notes); the loop's directions
     # have ‖d‖₁ = 1
-    margin = gamma(8, dtype) * norm_abs
+    margin = gamma(8, dtype, xp) * norm_abs
     v0, n12 = rel[:, 0], normals[:, 0]
-    volume = jnp.sum(v0 * n12, axis=-1)
+    volume = xp.sum(v0 * n12, axis=-1)
     # V's own rounding, and room for det's: a ray in the triangle's cone has
     # |det| ≥ |V| ‖d‖ / max_k ‖v_k − o‖, more than det's rounding beyond this (module notes)
-    reach = jnp.sqrt(jnp.max(jnp.sum(rel * rel, axis=-1), axis=-1))
-    bound = gamma(10, dtype) * (jnp.sum(jnp.abs(v0) * n_abs[:, 0], axis=-1)
-                                + 2 * reach * jnp.sum(norm_abs, axis=-1))
-    keep = valid & (jnp.abs(volume) > bound)
+    reach = xp.sqrt(xp.max(xp.sum(rel * rel, axis=-1), axis=-1))
+    bound = gamma(10, dtype, xp) * (xp.sum(xp.abs(v0) * n_abs[:, 0], axis=-1)
+                                + 2 * reach * xp.sum(norm_abs, axis=-1))
+    keep = valid & (xp.abs(volume) > bound)
     # n / V with n = Σ N (rounded as the loop's det would be): then 1 / t = d · (n / V)
     n = (normals[:, 0] + normals[:, 2]) - normals[:, 1]
-    inv = jnp.where(keep[:, None], n / jnp.where(keep, volume, 1)[:, None], 0)
-    return jnp.concatenate([normals.reshape(-1, 9), margin, inv], axis=1)
+    inv = xp.where(keep[:, None], n / xp.where(keep, volume, 1)[:, None], 0)
+    return xp.concatenate([normals.reshape(-1, 9), margin, inv], axis=1)
+
+
+def eye_planes(geometry, camera) -> Array | None:
+    """:func:`origin_planes` of a brute-force scene seen from its camera's eye, formed on the
+    host (numpy) as :class:`~jaxrt.scene.Scene` is built or given a new camera or geometry.
+
+    The render pass then reads the table as an input instead of forming it per pass: ten
+    fewer distinct kernels to compile (of 144 in the 256² MIS pass), XLA compile 4.21 → 3.91
+    s wall, 6.45 → 5.89 CPU-s (median of 5 alternating processes; benchmarks/README.md,
+    "fifteenth session"). Returns (F', 15) in the vertices' dtype, or None for a BVH or for
+    arrays traced by a transformation (the program then forms it, with the same result).
+    """
+    if not isinstance(geometry, TriangleSet):
+        return None
+    if any(isinstance(a, jax.core.Tracer)
+           for a in (geometry.sorted_vertices, geometry.valid, camera.eye)):
+        return None
+    dtype = np.asarray(geometry.sorted_vertices).dtype
+    return device_array(origin_planes(geometry, np.asarray(camera.eye, dtype), np))
 
 
 def closest_hit_from_origin(geometry: TriangleSet, origin: Array, direction: Array,
-                            t_max: Array) -> Hit:
+                            t_max: Array, planes: Array | None = None) -> Hit:
     """Nearest hit with ``0 < t ≤ t_max`` of one ray, tested by its origin's edge planes.
 
     The same query as :meth:`jaxrt.intersect.TriangleSet.closest_hit` (ties keep the lowest
@@ -117,12 +143,15 @@ def closest_hit_from_origin(geometry: TriangleSet, origin: Array, direction: Arr
     Args:
         geometry: a brute-force :class:`~jaxrt.intersect.TriangleSet`.
         origin: (3,) ray origin; direction: (3,) any non-zero length; t_max: () (may be inf).
+        planes: ``origin_planes(geometry, origin)`` when formed already (a scene's
+            :func:`eye_planes`); formed here when None or of another dtype than ``direction``.
     Returns:
         :class:`~jaxrt.intersect.Hit` (``t = inf``, ``prim = −1`` on a miss).
     """
     dtype = direction.dtype
     origin = jnp.asarray(origin, dtype)
-    table = origin_planes(geometry, origin)
+    table = (planes if planes is not None and planes.dtype == dtype
+             else origin_planes(geometry, origin))
     inf = jnp.asarray(jnp.inf, dtype)
     # the edge functions' rounding scales with ‖d‖: the loop reads d / ‖d‖₁ (‖d‖₁ ≥ ‖d‖₂,
     # no sqrt), so each margin is the table's (the same direction for every triangle)

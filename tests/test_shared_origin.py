@@ -5,15 +5,20 @@ too; here: agreement with the watertight test on camera rays, the origin in a tr
 plane, batched origins, and the render path that uses it.
 """
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxrt import scenes
-from jaxrt.camera import generate_ray
+from jaxrt.camera import generate_ray, look_at
 from jaxrt.intersect import closest_hit, triangle_set
-from jaxrt.shared_origin import closest_hit_from_origin, origin_planes
+from jaxrt.render import render
+from jaxrt.scene import build_scene
+from jaxrt.scenes.cornell import cornell_meshes
+from jaxrt.shared_origin import closest_hit_from_origin, eye_planes, origin_planes
 
 _general = jax.jit(jax.vmap(closest_hit, in_axes=(None, 0, 0, 0)))
 _shared = jax.jit(jax.vmap(closest_hit_from_origin, in_axes=(None, None, 0, 0)))
@@ -109,3 +114,44 @@ def test_batched_origins_give_the_same_hits():
     # t = V / det: the per-ray program may contract V or det differently, by an ulp or so
     np.testing.assert_allclose(np.asarray(a.t), np.asarray(b.t), rtol=4 * np.finfo(np.float32).eps)
     assert 0.5 < np.mean(np.isfinite(np.asarray(a.t))) < 0.95  # t_max = 0.1 rejects some
+
+
+def test_eye_planes_formed_on_the_host_are_the_programs_table():
+    """A scene carries its camera's edge-plane table, formed with numpy (every operation
+    rounded once): the program's table (which may contract products into FMAs) within the
+    normals' own rounding margin, the same triangles kept, None for a BVH or traced arrays."""
+    scene = scenes.cornell_box(16, 16)
+    host = np.asarray(scene.eye_planes)
+    program = np.asarray(jax.jit(origin_planes)(scene.geometry, scene.camera.eye))
+    assert host.dtype == program.dtype and host.shape == program.shape == (32, 15)
+    margin = np.repeat(host[:, 9:12], 3, axis=1)  # each edge's margin, per normal component
+    assert np.all(np.abs(host[:, :9] - program[:, :9]) <= margin)
+    np.testing.assert_allclose(host[:, 9:12], program[:, 9:12], rtol=2 * np.finfo(np.float32).eps)
+    # n / V: V and n rounded (or contracted) differently, within ~15 ulp of the row's scale
+    scale = np.max(np.abs(host[:, 12:]), axis=1, keepdims=True)
+    assert np.all(np.abs(host[:, 12:] - program[:, 12:]) <= 1e-5 * scale)
+    assert np.array_equal(np.any(host[:, 12:] != 0, 1), np.any(program[:, 12:] != 0, 1))
+    assert eye_planes(scenes.cornell_box(16, 16, accel="bvh").geometry, scene.camera) is None
+    seen = []
+    jax.eval_shape(lambda eye: seen.append(eye_planes(
+        scene.geometry, dataclasses.replace(scene.camera, eye=eye))), scene.camera.eye)
+    assert seen == [None]
+
+
+def test_a_new_camera_gets_its_own_eye_planes():
+    """``Scene.replace(camera=…)`` forms the table again: the image is the one of a scene built
+    with that camera, bit for bit (a stale table would test the triangles from the old eye);
+    the table formed in the program instead gives the same image but for rays within
+    rounding of an edge."""
+    scene = scenes.cornell_box(24, 24)
+    other = look_at(eye=[0.4, 0.3, -0.5], target=[0.25, 0.2, 0.3], up=[0, 1, 0], fov_deg=50,
+                    width=24, height=24)
+    moved = scene.replace(camera=other)
+    built = build_scene(cornell_meshes(), other)
+    np.testing.assert_array_equal(np.asarray(moved.eye_planes), np.asarray(built.eye_planes))
+    assert not np.array_equal(np.asarray(moved.eye_planes), np.asarray(scene.eye_planes))
+    image = lambda s: np.asarray(render(s, "mis", spp=4, seed=2, progress=False).image)
+    a = image(moved)
+    np.testing.assert_array_equal(a, image(built))
+    b = image(moved.replace(eye_planes=None))
+    assert np.mean(np.any(a != b, axis=-1)) <= 0.01
