@@ -72,7 +72,8 @@ def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
             them: :meth:`~jaxrt.intersect.TriangleSet.loop_tables`).
         origin: (3,) the rays' common origin; the table is formed in its dtype.
         xp: ``jax.numpy`` (in a program) or ``numpy`` (on the host, :func:`eye_planes`): the
-            same expression, each operation rounded once either way.
+            same expression; numpy rounds every operation once, XLA may contract products
+            into FMAs (fewer roundings), and the margins bound either.
     Returns:
         (F', 15): per triangle ``N_12``, ``N_02``, ``N_01`` (3 components each), the three
         edges' rounding margins for a direction of unit ``‖d‖₁``, and ``n / V`` (3); ``n / V``
@@ -86,13 +87,13 @@ def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
     a, b = rel[:, xp.array([1, 0, 0])], rel[:, xp.array([2, 2, 1])]  # (F', 3 edges, 3)
     # one elementwise expression for every edge of every triangle (watertight: module notes)
     normals = xp.stack([a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1],
-                         a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
-                         a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
+                        a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2],
+                        a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]], axis=-1)
     # |N| ≤ |a| ×ₐ |b| componentwise: bounds each normal and the rounding of its computation
     aa, bb = xp.abs(a), xp.abs(b)
     n_abs = xp.stack([aa[..., 1] * bb[..., 2] + aa[..., 2] * bb[..., 1],
-                       aa[..., 2] * bb[..., 0] + aa[..., 0] * bb[..., 2],
-                       aa[..., 0] * bb[..., 1] + aa[..., 1] * bb[..., 0]], axis=-1)
+                      aa[..., 2] * bb[..., 0] + aa[..., 0] * bb[..., 2],
+                      aa[..., 0] * bb[..., 1] + aa[..., 1] * bb[..., 0]], axis=-1)
     norm_abs = xp.sqrt(xp.sum(n_abs * n_abs, axis=-1))  # (F', 3 edges)
     # |d · N − d · N_exact| ≤ ‖d‖₁ · γ₈ ‖|a| ×ₐ |b|‖₂ (module notes); the loop's directions
     # have ‖d‖₁ = 1
@@ -103,7 +104,7 @@ def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
     # |det| ≥ |V| ‖d‖ / max_k ‖v_k − o‖, more than det's rounding beyond this (module notes)
     reach = xp.sqrt(xp.max(xp.sum(rel * rel, axis=-1), axis=-1))
     bound = gamma(10, dtype, xp) * (xp.sum(xp.abs(v0) * n_abs[:, 0], axis=-1)
-                                + 2 * reach * xp.sum(norm_abs, axis=-1))
+                                    + 2 * reach * xp.sum(norm_abs, axis=-1))
     keep = valid & (xp.abs(volume) > bound)
     # n / V with n = Σ N (rounded as the loop's det would be): then 1 / t = d · (n / V)
     n = (normals[:, 0] + normals[:, 2]) - normals[:, 1]
@@ -116,10 +117,11 @@ def eye_planes(geometry, camera) -> Array | None:
     host (numpy) as :class:`~jaxrt.scene.Scene` is built or given a new camera or geometry.
 
     The render pass then reads the table as an input instead of forming it per pass: ten
-    fewer distinct kernels to compile (of 144 in the 256² MIS pass), XLA compile 4.21 → 3.91
-    s wall, 6.45 → 5.89 CPU-s (median of 5 alternating processes; benchmarks/README.md,
+    fewer distinct kernels to compile (of 144 in the 256² MIS pass), XLA compile 4.19 → 3.94
+    s wall, 6.43 → 6.01 CPU-s (medians of 6 alternating processes; benchmarks/README.md,
     "fifteenth session"). Returns (F', 15) in the vertices' dtype, or None for a BVH or for
-    arrays traced by a transformation (the program then forms it, with the same result).
+    arrays traced by a transformation (the program then forms it: the same triangles hit
+    but for rays within rounding of an edge).
     """
     if not isinstance(geometry, TriangleSet):
         return None
