@@ -15,7 +15,8 @@ Every figure comes from a fresh interpreter (``subprocess``), as a user meets it
   and the same pass read from :mod:`jaxrt.program_cache` by a second process.
 
 The machine is shared: each figure is the median of ``--repeat`` runs, printed with the load
-average (``os.getloadavg``) before and after.
+average (``os.getloadavg``) before and after and the share of CPU time the host stole
+meanwhile (``/proc/stat``, where there is one).
 """
 
 from __future__ import annotations
@@ -101,9 +102,32 @@ def _env(**extra) -> dict:
     return env
 
 
+def _cpu_times() -> list[int] | None:
+    """The machine's cumulative CPU time per state (``/proc/stat``: user … steal), or None."""
+    try:
+        with open("/proc/stat") as f:
+            return [int(x) for x in f.readline().split()[1:9]]
+    except (OSError, ValueError):
+        return None
+
+
+_LAST_TIMES = _cpu_times()
+
+
 def _load() -> str:
+    """Load averages, and the share of CPU time stolen by the host since the last reading:
+    a shared VM at steal ≳ 5 % (or whose wall time exceeds its CPU time in a two-thread
+    pass) is running slower than its load says (benchmarks/README.md, "fifteenth session")."""
+    global _LAST_TIMES
     one, five, fifteen = os.getloadavg()
-    return f"load {one:.2f} {five:.2f} {fifteen:.2f}"
+    text = f"load {one:.2f} {five:.2f} {fifteen:.2f}"
+    now = _cpu_times()
+    if now is not None and _LAST_TIMES is not None:
+        spent = [b - a for a, b in zip(_LAST_TIMES, now, strict=True)]
+        if sum(spent) > 0:
+            text += f", steal {100 * spent[7] / sum(spent):.0f} % since the last reading"
+    _LAST_TIMES = now
+    return text
 
 
 def _child_cpu() -> float:
