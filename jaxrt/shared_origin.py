@@ -118,10 +118,10 @@ def eye_planes(geometry, camera) -> Array | None:
 
     The render pass then reads the table as an input instead of forming it per pass: ten
     fewer distinct kernels to compile (of 144 in the 256² MIS pass), XLA compile 4.19 → 3.94
-    s wall, 6.43 → 6.01 CPU-s (medians of 6 alternating processes; benchmarks/README.md,
-    "fifteenth session"). Returns (F', 15) in the vertices' dtype, or None for a BVH or for
-    arrays traced by a transformation (the program then forms it: the same triangles hit
-    but for rays within rounding of an edge).
+    s wall, 6.43 → 6.01 CPU-s (medians of 6 alternating processes, load 1.2–1.7;
+    benchmarks/README.md, "fifteenth session"). Returns (F', 15) in the vertices' dtype, or
+    None for a BVH or for arrays traced by a transformation (the program then forms it: the
+    same triangles hit but for rays within rounding of an edge).
     """
     if not isinstance(geometry, TriangleSet):
         return None

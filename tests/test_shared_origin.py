@@ -126,6 +126,8 @@ def test_eye_planes_formed_on_the_host_are_the_programs_table():
     assert host.dtype == program.dtype and host.shape == program.shape == (32, 15)
     margin = np.repeat(host[:, 9:12], 3, axis=1)  # each edge's margin, per normal component
     assert np.all(np.abs(host[:, :9] - program[:, :9]) <= margin)
+    # the margins γ₈‖|a| ×ₐ |b|‖: one rounding of the norm apart (measured 1 ulp); a margin
+    # 4 ulp off, a γ₇ for the γ₈, or an eye moved by 1e-5 fails this
     np.testing.assert_allclose(host[:, 9:12], program[:, 9:12], rtol=2 * np.finfo(np.float32).eps)
     # n / V: V and n rounded (or contracted) differently, within ~15 ulp of the row's scale
     scale = np.max(np.abs(host[:, 12:]), axis=1, keepdims=True)
