@@ -125,8 +125,12 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     # each lane's stream key once, outside the sample loop (jaxrt.sampler.pixel_key)
     keys = pixel_key(seed, pixels)
     stream = lambda key, index: Stream(sampler, key, index, spp_total)
-    first = jax.vmap(lambda pixel, key, index: camera_hit(scene, pixel, stream(key, index)),
-                     (0, 0, None))
+    # jitted: the prologue and the loop body call it with the same types, so it is traced,
+    # batched and lowered once (the same optimised program; the 256² MIS pass traced in ~0.2 s
+    # less, benchmarks/README.md, "sixteenth session")
+    first = jax.jit(jax.vmap(lambda pixel, key, index: camera_hit(scene, pixel,
+                                                                  stream(key, index)),
+                             (0, 0, None)))
     rest = jax.vmap(lambda key, index, hit, wo: camera_radiance(scene, est, hit, wo,
                                                                 stream(key, index)),
                     (0, None, 0, 0))

@@ -97,13 +97,13 @@ def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
     norm_abs = xp.sqrt(xp.sum(n_abs * n_abs, axis=-1))  # (F', 3 edges)
     # |d · N − d · N_exact| ≤ ‖d‖₁ · γ₈ ‖|a| ×ₐ |b|‖₂ (module notes); the loop's directions
     # have ‖d‖₁ = 1
-    margin = gamma(8, dtype, xp) * norm_abs
+    margin = gamma(8, dtype) * norm_abs
     v0, n12 = rel[:, 0], normals[:, 0]
     volume = xp.sum(v0 * n12, axis=-1)
     # V's own rounding, and room for det's: a ray in the triangle's cone has
     # |det| ≥ |V| ‖d‖ / max_k ‖v_k − o‖, more than det's rounding beyond this (module notes)
     reach = xp.sqrt(xp.max(xp.sum(rel * rel, axis=-1), axis=-1))
-    bound = gamma(10, dtype, xp) * (xp.sum(xp.abs(v0) * n_abs[:, 0], axis=-1)
+    bound = gamma(10, dtype) * (xp.sum(xp.abs(v0) * n_abs[:, 0], axis=-1)
                                     + 2 * reach * xp.sum(norm_abs, axis=-1))
     keep = valid & (xp.abs(volume) > bound)
     # n / V with n = Σ N (rounded as the loop's det would be): then 1 / t = d · (n / V)

@@ -61,8 +61,13 @@ def computed_once(x: Array) -> Array:
     for the two (benchmarks/README.md).
     """
     pair = jnp.stack([x, jnp.full_like(x, -0.0)])
-    # a lambda, not lax.add: JAX would take (add, −0) for the monoid reduce_sum, whose zero is +0
-    return jax.lax.reduce(pair, jnp.asarray(-0.0, pair.dtype), lambda a, b: a + b, (0,))
+    return jax.lax.reduce(pair, jnp.asarray(-0.0, pair.dtype), _plus, (0,))
+
+
+def _plus(a, b):
+    # not lax.add: JAX would take (add, −0) for the monoid reduce_sum, whose zero is +0. One
+    # function object for every call, so that JAX traces the reduction's body once per dtype
+    return a + b
 
 
 @computed_once.defjvp
