@@ -16,7 +16,8 @@ Every figure comes from a fresh interpreter (``subprocess``), as a user meets it
 
 The machine is shared: each figure is the median of ``--repeat`` runs, printed with the load
 average (``os.getloadavg``) before and after and the share of CPU time the host stole
-meanwhile (``/proc/stat``, where there is one).
+meanwhile (``/proc/stat``, where there is one); and first, the seconds of a pure-Python loop,
+since a VM's speed moves with neither.
 """
 
 from __future__ import annotations
@@ -130,6 +131,21 @@ def _load() -> str:
     return text
 
 
+def _python_speed() -> str:
+    """Seconds this machine takes for a 10⁷-step pure-Python loop (best of three), printed
+    beside the figures: the same VM kind ran it in 0.6 s one day and 2.4–3.0 s another with
+    no steal and no load, and every start-up figure (tracing is Python) moved with it."""
+    import time
+
+    best = float("inf")
+    for _ in range(3):
+        t0, s = time.perf_counter(), 0
+        for i in range(10**7):
+            s += i
+        best = min(best, time.perf_counter() - t0)
+    return f"10^7-step Python loop {best:.2f} s"
+
+
 def _child_cpu() -> float:
     r = resource.getrusage(resource.RUSAGE_CHILDREN)
     return r.ru_utime + r.ru_stime
@@ -224,6 +240,7 @@ def main(argv=None) -> dict:
     global TREE
     TREE = Path(a.jaxrt).resolve() if a.jaxrt else ROOT
     out = {}
+    print(_python_speed(), flush=True)
     if a.only in (None, "first"):
         print(_load(), flush=True)
         out["first"] = first_frame(a.repeat)

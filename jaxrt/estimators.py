@@ -92,8 +92,10 @@ from jaxrt.terms import (  # re-exported: the terms the estimators are built of
 #: programs are untouched; :func:`compiler_options` keeps those the installed XLA knows.
 #: Measured on the 256² Cornell box (benchmarks/README.md, "render hot path"):
 #:
-#: - ``xla_cpu_prefer_vector_width=512``: MIS 1.5× per CPU-second (AVX-512 on this AMD EPYC;
-#:   on narrower CPUs XLA uses what exists).
+#: - ``xla_cpu_prefer_vector_width=512``: MIS 1.5× per CPU-second (AVX-512 on an AMD EPYC of
+#:   family 26). On a CPU without AVX-512 XLA uses what exists: on a family-23 EPYC (AVX2)
+#:   the pass compiled as fast and ran 0.995-1.02x as fast without the option or at 256,
+#:   images identical (10 rounds, one process; benchmarks/README.md, "sixteenth session").
 #: - ``xla_cpu_experimental_ynn_fusion_type=""`` (no YNNPACK fusions): XLA:CPU hands every
 #:   reduction to YNNPACK, whose reduction over the minor axis of an (N, 3) array (each
 #:   ``vecmath.dot`` under ``vmap``) took 298 µs for N = 16 384 where XLA's own loop takes 32;
