@@ -129,7 +129,9 @@ class Scene:
         them).
 
     ``occluders``, ``convex`` and ``eye_planes`` are derived from the other fields: change
-    the scene with :meth:`replace`, which forms them again.
+    the scene with :meth:`replace`, which forms them again. (A render forms ``eye_planes``
+    again from the scene's own camera and geometry anyway, so a copy made with
+    ``dataclasses.replace`` renders right; its ``occluders`` and ``convex`` would be stale.)
     """
 
     geometry: Any
