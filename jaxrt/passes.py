@@ -127,8 +127,8 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     keys = pixel_key(seed, pixels)
     stream = lambda key, index: Stream(sampler, key, index, spp_total)
     # jitted: the prologue and the loop body call it with the same types, so it is traced,
-    # batched and lowered once (the same optimised program; the 256² MIS pass traced in ~0.2 s
-    # less, benchmarks/README.md, "sixteenth session")
+    # batched and lowered once (the same optimised program; with convex_any_hit's jit the
+    # 256² MIS pass's trace took 0.79x as long: benchmarks/README.md, "sixteenth session")
     first = jax.jit(jax.vmap(lambda pixel, key, index: camera_hit(scene, pixel,
                                                                   stream(key, index)),
                              (0, 0, None)))

@@ -104,7 +104,7 @@ def origin_planes(geometry: TriangleSet, origin: Array, xp=jnp) -> Array:
     # |det| ≥ |V| ‖d‖ / max_k ‖v_k − o‖, more than det's rounding beyond this (module notes)
     reach = xp.sqrt(xp.max(xp.sum(rel * rel, axis=-1), axis=-1))
     bound = gamma(10, dtype) * (xp.sum(xp.abs(v0) * n_abs[:, 0], axis=-1)
-                                    + 2 * reach * xp.sum(norm_abs, axis=-1))
+                                + 2 * reach * xp.sum(norm_abs, axis=-1))
     keep = valid & (xp.abs(volume) > bound)
     # n / V with n = Σ N (rounded as the loop's det would be): then 1 / t = d · (n / V)
     n = (normals[:, 0] + normals[:, 2]) - normals[:, 1]
