@@ -34,7 +34,6 @@ from jaxrt.estimators import (
 from jaxrt.path import pass_sums
 from jaxrt.sampler import pixel_key
 from jaxrt.scene import Scene
-from jaxrt.shared_origin import eye_planes
 from jaxrt.vecmath import computed_once
 
 #: Tiles are rounded up to a multiple of this many pixels (the widest CPU vector of float32).
@@ -229,11 +228,7 @@ class RenderPass:
         self.dtype = scene.triangles.dtype
         self.devices = devices
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
-        if scene.eye_planes is not None:
-            # derived from the camera and the geometry: formed again from the scene's own
-            # (~1 ms for the Cornell box), so that a copy made with dataclasses.replace, which
-            # keeps the old table, still renders right (a stale table made 78 % of pixels wrong)
-            scene = scene.replace(eye_planes=eye_planes(scene.geometry, scene.camera))
+        scene = scene.with_own_eye_planes()  # a dataclasses.replace copy's may be stale
         # the scene's arrays are copied to every device once, not once per pass
         self.scenes = [jax.device_put(scene, d) for d in devices]
         self.seeds = [jax.device_put(np.uint32(seed), d) for d in devices]
