@@ -228,7 +228,7 @@ class RenderPass:
         self.dtype = scene.triangles.dtype
         self.devices = devices
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
-        scene = scene.with_own_eye_planes()  # a dataclasses.replace copy's may be stale
+        scene = scene.with_own_derived_state()  # a dataclasses.replace copy's may be stale
         # the scene's arrays are copied to every device once, not once per pass
         self.scenes = [jax.device_put(scene, d) for d in devices]
         self.seeds = [jax.device_put(np.uint32(seed), d) for d in devices]

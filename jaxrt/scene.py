@@ -129,10 +129,10 @@ class Scene:
         them).
 
     ``occluders``, ``convex`` and ``eye_planes`` are derived from the other fields: change
-    the scene with :meth:`replace`, which forms them again. (A program's entry forms
-    ``eye_planes`` again from the scene's own camera and geometry anyway,
-    :meth:`with_own_eye_planes`, so a copy made with ``dataclasses.replace`` renders right;
-    its ``occluders`` and ``convex`` would be stale.)
+    the scene with :meth:`replace`, which forms them again (or keeps what it is given). A
+    copy made otherwise (``dataclasses.replace``, or rebuilt from its leaves by
+    ``jax.tree.map``) has them formed again by each program's entry,
+    :meth:`with_own_derived_state`, so it renders right too.
     """
 
     geometry: Any
@@ -179,20 +179,29 @@ class Scene:
             new = dataclasses.replace(new, occluders=occluders, convex=convex)
         if "eye_planes" not in changes and {"geometry", "camera"} & set(changes):
             new = dataclasses.replace(new, eye_planes=eye_planes(new.geometry, new.camera))
-        return new
+        return _formed(new)
 
-    def with_own_eye_planes(self) -> Scene:
-        """This scene with ``eye_planes`` formed again from its own camera and geometry, when
-        it carries a table and they are concrete (None stays None: the program forms it; under
-        tracing the table is kept, unchecked, as the scene was passed in). A program's entry
-        calls it (:class:`jaxrt.passes.RenderPass`, :func:`guard_geometry`), so that a copy
-        made with ``dataclasses.replace``, which keeps its original's table, still renders
-        right (a stale table made 78 % of a 24² image's pixels wrong). ~1 ms of numpy for the
-        Cornell box."""
-        if self.eye_planes is None:
+    def with_own_derived_state(self) -> Scene:
+        """This scene with ``occluders``, ``convex`` and ``eye_planes`` formed again from its own
+        geometry, triangles, materials, lights and camera, unless they are known to belong to
+        them: a scene made by :func:`build_scene` or :meth:`replace` (which honours derived
+        fields it is given, e.g. ``replace(occluders=None)``, every triangle tested) is
+        returned as it is, and so is one with traced arrays (a jit argument: nothing can be
+        formed from tracers, so the fields are kept, unchecked, as passed in).
+
+        A program's entry calls it (:class:`jaxrt.passes.RenderPass`, :func:`guard_geometry`),
+        so that a copy made with ``dataclasses.replace`` or rebuilt from its leaves, which keeps
+        its original's derived fields, still renders right: with the old camera's plane table
+        78 % of a 24² image's pixels were wrong, with the old blocks' convex planes the moved
+        blocks cast the old shadows. ~7 ms of numpy for the Cornell box, only for such copies.
+        """
+        if getattr(self, _FORMED, False) or any(
+                isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(self)):
             return self
-        fresh = eye_planes(self.geometry, self.camera)
-        return self if fresh is None else dataclasses.replace(self, eye_planes=fresh)
+        occluders, convex = shadow_blockers(self.geometry, self.triangles, self.lights,
+                                            self.prim_material)
+        return _formed(dataclasses.replace(self, occluders=occluders, convex=convex,
+                                           eye_planes=eye_planes(self.geometry, self.camera)))
 
     def summary(self) -> str:
         """A few lines describing the scene's structure (what the compiled kernel contains)."""
@@ -205,6 +214,17 @@ class Scene:
         return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
                 f"({type(self.geometry).__name__}){shadow}, {self.materials.kind.shape[0]} "
                 f"materials [{kinds}], lights: {describe_lights(self.lights)}")
+
+
+#: Set on a scene made by :func:`build_scene` or :meth:`Scene.replace`: its derived fields
+#: (``occluders``, ``convex``, ``eye_planes``) belong to its other fields. Not a dataclass
+#: field, so a copy made with ``dataclasses.replace`` or unflattened from its leaves lacks it.
+_FORMED = "_derived_state_formed"
+
+
+def _formed(scene: Scene) -> Scene:
+    object.__setattr__(scene, _FORMED, True)
+    return scene
 
 
 def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = (), *,
@@ -274,7 +294,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     geometry = build_geometry(triangles, accel=accel)
     dt = jax.dtypes.canonicalize_dtype(jnp.float64)
     stored = device_array(triangles, dt)  # what the kernels read; occluders are found in it
-    return Scene(
+    return _formed(Scene(
         geometry=geometry,
         triangles=stored,
         prim_material=device_array(prim_material),
@@ -287,7 +307,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
                                                                     prim_material),
                    strict=True)),
         eye_planes=eye_planes(geometry, camera),
-    )
+    ))
 
 
 def shading_scene(material: mt.Material, lights: Sequence[Any], occluders: Sequence[Mesh] = (),
@@ -567,7 +587,7 @@ def guard_geometry(scene: Scene) -> Scene:
         a = jnp.asarray(a)
         return nondifferentiable(a, what) if jnp.issubdtype(a.dtype, jnp.floating) else a
 
-    scene = scene.with_own_eye_planes()
+    scene = scene.with_own_derived_state()
     lights = scene.lights
     tables = {}
     for kind, fields in LIGHT_GEOMETRY_FIELDS.items():

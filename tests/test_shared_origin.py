@@ -175,5 +175,5 @@ def test_a_stale_table_is_formed_again_by_the_render():
     estimate = lambda s: np.asarray(estimate_image(s, "mis", spp=2, seed=2))
     np.testing.assert_array_equal(estimate(stale), estimate(scene.replace(camera=other)))
     # traced (the scene a jit argument), the table cannot be formed again: kept as passed in
-    kept = jax.jit(lambda s: s.with_own_eye_planes().eye_planes)(stale)
+    kept = jax.jit(lambda s: s.with_own_derived_state().eye_planes)(stale)
     np.testing.assert_array_equal(np.asarray(kept), np.asarray(stale.eye_planes))
