@@ -30,6 +30,7 @@ from jaxrt.estimators import (
     camera_hit,
     camera_radiance,
     compiler_options,
+    compiler_options_soon,
 )
 from jaxrt.path import pass_sums
 from jaxrt.sampler import pixel_key
@@ -243,15 +244,20 @@ class RenderPass:
     def compile(self, count: int) -> float:
         """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
         t0 = time.perf_counter()
-        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing)
-        self.compiled[count] = [program_cache.compile_cached(*job) for job in self.jobs(count)]
+        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing);
+        # the options' probe compiles on another thread while this one traces (first time)
+        jobs = self.jobs(count, compiler_options_soon())
+        self.compiled[count] = [program_cache.compile_cached(*job) for job in jobs]
         return time.perf_counter() - t0
 
-    def jobs(self, count: int) -> list:
+    def jobs(self, count: int, options=None) -> list:
         """``(function, arguments, static arguments, compiler options, device)`` of the
-        program each device runs for ``count`` samples per pixel."""
+        program each device runs for ``count`` samples per pixel (``options``: those of
+        :func:`~jaxrt.estimators.compiler_options`, or a future of them, by default found
+        now)."""
+        options = compiler_options() if options is None else options
         return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f, z),
-                 dict(count=count, **self.static), compiler_options(), d)
+                 dict(count=count, **self.static), options, d)
                 for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
                                            self.zeros(), strict=True)]
 

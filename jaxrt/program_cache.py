@@ -30,6 +30,7 @@ never does. At most :data:`MAX_FILES` programs are kept (least recently used go 
 
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import hashlib
 import io
@@ -117,10 +118,14 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, device):
     """``fn.lower(*args, **static).compile(options)``, read from the cache when it holds it.
 
     ``fn`` is a ``jax.jit`` function with ``static`` as its static arguments; ``args`` are
-    committed to ``device``. Returns a ``jax.stages.Compiled``.
+    committed to ``device``; ``options`` a dict, or a ``concurrent.futures.Future`` of one
+    (waited for after the trace when there is no cache, before the key when there is).
+    Returns a ``jax.stages.Compiled``.
     """
     if DIRECTORY is None:
-        return fn.lower(*args, **static).compile(options)
+        lowered = fn.lower(*args, **static)
+        return lowered.compile(_resolved(options))
+    options = _resolved(options)
     key = program_key(fn, args, static, options, device)
     path = Path(DIRECTORY) / (key + _SUFFIX)
     in_tree = jax.tree.structure((args, {}))
@@ -139,6 +144,10 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, device):
     if getattr(_XLA_CACHE_HITS, "n", 0) == before:
         _store(path, key, compiled)
     return compiled
+
+
+def _resolved(options) -> dict:
+    return options.result() if isinstance(options, concurrent.futures.Future) else options
 
 
 #: JAX persistent-cache hits in this thread (see :func:`compile_cached`).
