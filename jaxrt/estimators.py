@@ -147,9 +147,11 @@ def compiler_options() -> dict:
 def compiler_options_soon() -> concurrent.futures.Future:
     """:func:`compiler_options` as a future, its probe compiled on a thread of its own.
 
-    The probe's trivial program (lowered, then compiled: ~0.05 s and 0.11 s in a process's
-    first compile on a 2-core VM of 2026-12) then runs while the caller traces its program,
-    which needs the options only when it compiles (:meth:`jaxrt.passes.RenderPass.compile`).
+    The probe's trivial program (0.085 s in a fresh process on the 2-core VM of 2026-12-04,
+    most of it the process's first-compile set-up) then compiles while the caller traces its
+    program, which needs the options only when it compiles
+    (:meth:`jaxrt.passes.RenderPass.compile`): ~0.05 s off a first frame, since the probe's
+    lowering shares the GIL with the trace (benchmarks/README.md, "seventeenth session").
     Already resolved once :func:`compiler_options` has run in this process.
     """
     if compiler_options.cache_info().currsize:
