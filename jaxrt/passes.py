@@ -23,13 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array, lax
 
-from jaxrt import program_cache
+from jaxrt import estimators, program_cache
 from jaxrt.estimators import (
     Estimator,
     Stream,
     camera_hit,
     camera_radiance,
-    compiler_options,
     compiler_options_soon,
 )
 from jaxrt.path import pass_sums
@@ -244,20 +243,20 @@ class RenderPass:
     def compile(self, count: int) -> float:
         """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
         t0 = time.perf_counter()
-        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing);
-        # the options' probe compiles on another thread while this one traces (first time)
-        jobs = self.jobs(count, compiler_options_soon())
-        self.compiled[count] = [program_cache.compile_cached(*job) for job in jobs]
+        # read from jaxrt's program cache when the jaxrt command has set one up (no tracing,
+        # no option probe); else the options' probe compiles on another thread while this
+        # one traces (the first time in a process)
+        self.compiled[count] = [program_cache.compile_cached(*job, resolve=compiler_options_soon)
+                                for job in self.jobs(count)]
         return time.perf_counter() - t0
 
-    def jobs(self, count: int, options=None) -> list:
+    def jobs(self, count: int) -> list:
         """``(function, arguments, static arguments, compiler options, device)`` of the
-        program each device runs for ``count`` samples per pixel (``options``: those of
-        :func:`~jaxrt.estimators.compiler_options`, or a future of them, by default found
-        now)."""
-        options = compiler_options() if options is None else options
+        program each device runs for ``count`` samples per pixel (the options jaxrt asks for,
+        :data:`~jaxrt.estimators.COMPILER_OPTIONS`, as the program cache's key names them;
+        it compiles with those XLA accepts, :func:`~jaxrt.estimators.compiler_options`)."""
         return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f, z),
-                 dict(count=count, **self.static), options, d)
+                 dict(count=count, **self.static), dict(estimators.COMPILER_OPTIONS), d)
                 for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
                                            self.zeros(), strict=True)]
 

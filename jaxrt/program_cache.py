@@ -114,18 +114,21 @@ def program_key(fn, args: tuple, static: dict, options: dict, device) -> str:
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
-def compile_cached(fn, args: tuple, static: dict, options: dict, device):
+def compile_cached(fn, args: tuple, static: dict, options: dict, device, resolve=None):
     """``fn.lower(*args, **static).compile(options)``, read from the cache when it holds it.
 
     ``fn`` is a ``jax.jit`` function with ``static`` as its static arguments; ``args`` are
-    committed to ``device``; ``options`` a dict, or a ``concurrent.futures.Future`` of one
-    (waited for after the trace when there is no cache, before the key when there is).
+    committed to ``device``. ``options`` are the compiler options the key names; ``resolve``,
+    when given, is called only when the program must be compiled, before it is traced, and
+    gives the options to compile with, a dict or a ``concurrent.futures.Future`` of one
+    (waited for after lowering, so that it can be found beside the trace). jaxrt's passes
+    name the options they ask for and resolve them to the ones this XLA accepts
+    (:func:`jaxrt.estimators.compiler_options_soon`): the accepted set is a function of the
+    asked set and the jaxlib version, both in the key, so a hit needs no probe.
     Returns a ``jax.stages.Compiled``.
     """
     if DIRECTORY is None:
-        lowered = fn.lower(*args, **static)
-        return lowered.compile(_resolved(options))
-    options = _resolved(options)
+        return _compile(fn, args, static, options, resolve)
     key = program_key(fn, args, static, options, device)
     path = Path(DIRECTORY) / (key + _SUFFIX)
     in_tree = jax.tree.structure((args, {}))
@@ -137,7 +140,7 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, device):
     STATS["misses"] += 1
     _watch_xla_cache()
     before = getattr(_XLA_CACHE_HITS, "n", 0)
-    compiled = fn.lower(*args, **static).compile(options)
+    compiled = _compile(fn, args, static, options, resolve)
     # an executable read from JAX's persistent cache is not kept: XLA:CPU (jaxlib 0.10.2)
     # serialises a deserialised executable without some of its kernels, and running it
     # fails ("Function ... not found"); only freshly compiled programs are stored
@@ -146,8 +149,12 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, device):
     return compiled
 
 
-def _resolved(options) -> dict:
-    return options.result() if isinstance(options, concurrent.futures.Future) else options
+def _compile(fn, args: tuple, static: dict, options: dict, resolve):
+    pending = options if resolve is None else resolve()
+    lowered = fn.lower(*args, **static)
+    if isinstance(pending, concurrent.futures.Future):
+        pending = pending.result()
+    return lowered.compile(pending)
 
 
 #: JAX persistent-cache hits in this thread (see :func:`compile_cached`).
