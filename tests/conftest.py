@@ -1,5 +1,10 @@
 """Shared fixtures: an x64 switch so every kernel is also tested in double precision."""
 
+import json
+import subprocess
+import sys
+import textwrap
+
 import jax
 import pytest
 
@@ -40,3 +45,29 @@ def camera_sample_mean():
         return np.asarray(values, np.float64).mean(axis=1).reshape(scene.height, scene.width, 3)
 
     return mean
+
+
+@pytest.fixture
+def compiles_in_fresh_process(tmp_path):
+    """``run(body, *argv)``: ``body`` (Python source) run in a fresh interpreter (cwd
+    ``tmp_path``, ``sys.argv[1:] = argv``) after every ``jax.stages.Lowered.compile`` is
+    made to append ``(thread name, options)`` to a list ``COMPILES``; ``body``'s last printed
+    line is JSON, which ``run`` returns. Only a fresh process shows what jaxrt compiles once
+    per process (the compile-option probe)."""
+    spy = """
+        import json, sys, threading, jax
+        COMPILES = []
+        _compile = jax.stages.Lowered.compile
+        def _spy(self, options=None):
+            COMPILES.append((threading.current_thread().name, options))
+            return _compile(self, options)
+        jax.stages.Lowered.compile = _spy
+    """
+
+    def run(body: str, *argv: str):
+        code = textwrap.dedent(spy) + textwrap.dedent(body)
+        out = subprocess.run([sys.executable, "-c", code, *argv], capture_output=True,
+                             text=True, check=True, cwd=tmp_path).stdout
+        return json.loads(out.splitlines()[-1])
+
+    return run

@@ -1,10 +1,6 @@
 """The compiled pass's sums: an error-free TwoSum chain per pixel, carried from pass to pass."""
 
-import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -95,27 +91,18 @@ def test_compiler_options_keep_what_xla_accepts(monkeypatch):
         E.compiler_options.cache_clear()
 
 
-def test_the_option_probe_compiles_on_its_own_thread_while_the_pass_traces():
+def test_the_option_probe_compiles_on_its_own_thread_while_the_pass_traces(
+        compiles_in_fresh_process):
     """In a fresh process the compile-option probe's program compiles on a thread of its own,
     started before the pass is traced; the pass then compiles on the caller's thread with the
     options the probe found (``estimators.compiler_options_soon``)."""
-    code = """if True:
-        import json, threading, jax
-        seen = []
-        compile_ = jax.stages.Lowered.compile
-        def spy(self, options=None):
-            seen.append((threading.current_thread().name, options))
-            return compile_(self, options)
-        jax.stages.Lowered.compile = spy
+    seen, options = compiles_in_fresh_process("""
         from jaxrt import scenes
         from jaxrt.estimators import compiler_options
         from jaxrt.render import render
         render(scenes.cornell_box(16, 16), "mis", spp=1, progress=False)
-        print(json.dumps([seen, compiler_options()]))
-    """
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         check=True, cwd=Path(__file__).parent).stdout
-    seen, options = json.loads(out.splitlines()[-1])
+        print(json.dumps([COMPILES, compiler_options()]))
+    """)
     names = [name.split("_")[0] for name, _ in seen]  # the probe: one compile, or one per option
     assert len(seen) >= 2 and set(names[:-1]) == {"jaxrt-option-probe"}
     assert names[-1] == "MainThread" and options and seen[-1][1] == options

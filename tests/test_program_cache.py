@@ -3,11 +3,8 @@
 A hit must render the image of a fresh compile bit for bit; any change to what the traced
 program depends on must miss; a damaged or hostile file must be ignored with a warning."""
 
-import json
 import pickle
 import shutil
-import subprocess
-import sys
 
 import jax
 import numpy as np
@@ -62,32 +59,21 @@ def test_hit_renders_the_fresh_compile_bit_for_bit(cache_dir, monkeypatch):
     assert _files(cache_dir)[0].name.startswith(_key(box))
 
 
-def test_a_hit_compiles_nothing_not_even_the_option_probe(tmp_path):
+def test_a_hit_compiles_nothing_not_even_the_option_probe(tmp_path, compiles_in_fresh_process):
     """A fresh process that reads its pass from the cache compiles no program at all: the key
     names the options jaxrt asks for, not those the probe finds XLA accepts (a function of
     them and the jaxlib version, both in the key), so the probe runs only on a miss."""
-    code = """if True:
-        import json, sys, jax
-        seen = []
-        compile_ = jax.stages.Lowered.compile
-        def spy(self, options=None):
-            seen.append(options)
-            return compile_(self, options)
-        jax.stages.Lowered.compile = spy
+    body = """
         from jaxrt import program_cache, scenes
         from jaxrt.render import render
         program_cache.set_directory(sys.argv[1])
         render(scenes.cornell_box(8, 8), "mis", spp=2, seed=3, progress=False)
-        print(json.dumps([len(seen), program_cache.STATS]))
+        print(json.dumps([len(COMPILES), program_cache.STATS]))
     """
-    def fresh_process():
-        out = subprocess.run([sys.executable, "-c", code, str(tmp_path / "programs")],
-                             capture_output=True, text=True, check=True, cwd=tmp_path).stdout
-        return json.loads(out.splitlines()[-1])
-
-    compiles, stats = fresh_process()
+    directory = str(tmp_path / "programs")
+    compiles, stats = compiles_in_fresh_process(body, directory)
     assert compiles >= 2 and stats["misses"] == 1 and stats["stores"] == 1  # probe and pass
-    compiles, stats = fresh_process()
+    compiles, stats = compiles_in_fresh_process(body, directory)
     assert stats["hits"] == 1 and stats["misses"] == 0
     assert compiles == 0
 
