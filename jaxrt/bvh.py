@@ -105,9 +105,10 @@ class BVH:
     def num_triangles(self) -> int:
         return self.prim.shape[0] - self.leaf_size
 
-    def closest_hit(self, origin: Array, direction: Array, t_max: Array) -> Hit:
+    def closest_hit(self, origin: Array, direction: Array, t_max: Array,
+                    stored_barycentrics: bool = False) -> Hit:
         """Closest hit of ONE ray in ``(0, t_max]``: see :func:`closest_hit_ray`."""
-        return closest_hit_ray(self, origin, direction, t_max)
+        return closest_hit_ray(self, origin, direction, t_max, stored_barycentrics)
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
         """Whether ONE ray hits anything in ``(0, t_max]``: see :func:`any_hit_ray`."""
@@ -281,13 +282,14 @@ def _running(bvh: BVH, c: _Cursor) -> Array:
     return c.node < bvh.num_nodes
 
 
-def _to_hit(bvh: BVH, frame: RayFrame, t, pos) -> Hit:
+def _to_hit(bvh: BVH, frame: RayFrame, t, pos, stored_barycentrics: bool = False) -> Hit:
     """Turn a traversal result into a :class:`Hit` (prim −1, t = inf, zeros on a miss)."""
     found = pos >= 0
     p = jnp.maximum(pos, 0)
     v = [a[p] for a in bvh.tri]
     # barycentrics and hit point of the winner only, once per ray (as TriangleSet does)
-    return winner_hit(frame, t, jnp.where(found, bvh.prim[p], -1), v, bvh.ng[p])
+    return winner_hit(frame, t, jnp.where(found, bvh.prim[p], -1), v, bvh.ng[p],
+                      stored_barycentrics)
 
 
 def _traverse_one(bvh: BVH, origin, direction, t_max, stop_at_first: bool) -> _Cursor:
@@ -418,16 +420,18 @@ def _make_traverse(stop_at_first: bool):
 _TRAVERSE = {False: _make_traverse(False), True: _make_traverse(True)}
 
 
-def closest_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> Hit:
+def closest_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array,
+                    stored_barycentrics: bool = False) -> Hit:
     """Closest intersection of ONE ray with the BVH's triangles, ``t ∈ (0, t_max]``.
 
     Stackless traversal along skip links; boxes are culled against the current closest
     ``t``, so the search shrinks as hits are found. ``origin``, ``direction``: (3,), world
     frame, ``direction`` need not be unit (``t`` is in units of ``‖direction‖``). Returns a
     :class:`Hit` with ``prim = −1`` and ``t = inf`` on a miss. Vmap over rays.
+    ``stored_barycentrics`` (static): see :func:`jaxrt.intersect.winner_hit`.
     """
     t, pos = _TRAVERSE[False](bvh, origin, direction, jnp.asarray(t_max, origin.dtype))
-    return _to_hit(bvh, ray_frame(origin, direction), t, pos)
+    return _to_hit(bvh, ray_frame(origin, direction), t, pos, stored_barycentrics)
 
 
 def any_hit_ray(bvh: BVH, origin: Array, direction: Array, t_max: Array) -> Array:

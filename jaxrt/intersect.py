@@ -138,17 +138,28 @@ def surface_point(v0: tuple, v1: tuple, v2: tuple, b1: Array,
     return tuple(p), tuple(err)
 
 
-def winner_hit(frame: RayFrame, t: Array, prim: Array, v: list, ng: Array) -> Hit:
+def winner_hit(frame: RayFrame, t: Array, prim: Array, v: list, ng: Array,
+               stored_barycentrics: bool = False) -> Hit:
     """The :class:`Hit` of the closest triangle, from its 9 vertex components ``v`` and normal.
 
     ``prim`` < 0 is a miss. Barycentrics and the hit point are computed for the winner only,
     once per ray, from values the loop's caller has already gathered.
+
+    ``stored_barycentrics`` (static): store ``b1``, ``b2`` (:func:`~jaxrt.vecmath.computed_once`)
+    before the point is formed from them. For a hit that shading continues from (a path's
+    next vertex): XLA:CPU computes each element of a (…, 3) output on its own, so the kernel
+    that forms ``p`` (fused with the convex faces' select, :func:`jaxrt.scene.intersect`)
+    evaluated the barycentrics, two divisions among them, once per component: 152 → 25 ms per
+    8-spp 256² path pass, the pass 1.21–1.23× per CPU-second (benchmarks/README.md,
+    "twentieth session"). Not for the camera's and the BSDF ray's emitter hits of the direct
+    estimators, whose points have few consumers (MIS 0.93–1.0× stored).
     """
     hit = prim >= 0
     v0, v1, v2 = tuple(v[0:3]), tuple(v[3:6]), tuple(v[6:9])
     b1, b2 = barycentrics_frame(frame, v0, v1, v2)
     zero = jnp.zeros_like(t)
-    b1, b2 = jnp.where(hit, b1, zero), jnp.where(hit, b2, zero)
+    keep = computed_once if stored_barycentrics else (lambda x: x)
+    b1, b2 = keep(jnp.where(hit, b1, zero)), keep(jnp.where(hit, b2, zero))
     p, p_error = surface_point(v0, v1, v2, b1, b2)
     zero3 = jnp.zeros(3, t.dtype)
     return Hit(t=jnp.where(hit, t, jnp.asarray(jnp.inf, t.dtype)),
@@ -389,7 +400,8 @@ class TriangleSet(NamedTuple):
         """Number of triangles ``F`` (static)."""
         return self.vertices.shape[0]
 
-    def closest_hit(self, origin: Array, direction: Array, t_max: Array) -> Hit:
+    def closest_hit(self, origin: Array, direction: Array, t_max: Array,
+                    stored_barycentrics: bool = False) -> Hit:
         """Nearest hit with ``0 < t ≤ t_max`` of one ray; see :func:`closest_hit`."""
         frame = ray_frame(origin, direction)
         dtype = frame.sz.dtype
@@ -404,7 +416,7 @@ class TriangleSet(NamedTuple):
         # the carry starts as a value of the ray (inf wherever it is valid or not), so that
         # under vmap it is batched from the start and JAX batches the body once, not twice
         t, prim = closest_loop(t_of, verts.shape[0], jnp.where(frame.valid, inf, inf))
-        return finish_hit(self, frame, t, prim)
+        return finish_hit(self, frame, t, prim, stored_barycentrics)
 
     def any_hit(self, origin: Array, direction: Array, t_max: Array) -> Array:
         """Whether one ray hits any triangle with ``0 < t ≤ t_max``; see :func:`any_hit`."""
@@ -470,8 +482,10 @@ def loop_unroll(count: int) -> int:
     return UNROLL if count > UNROLL else 1
 
 
-def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) -> Hit:
-    """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t``."""
+def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array,
+               stored_barycentrics: bool = False) -> Hit:
+    """Build the :class:`Hit` of triangle ``prim`` (−1: miss) at distance ``t`` (for
+    ``stored_barycentrics`` see :func:`winner_hit`)."""
     k = jnp.maximum(prim, 0)
     # one gather per scalar component, each from an (F,) array of its own: under vmap each
     # is a contiguous (N,) vector (gathering (3, 3) rows made this step cost more than the
@@ -482,7 +496,7 @@ def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array) ->
     # loop XLA inlines) than in longer ones, an ulp apart in 2 of 1 024 pixels; stored, the
     # 256² MIS pass also ran 1.11-1.17x as fast (benchmarks/README.md, "twelfth session")
     c = [computed_once(column[k].astype(t.dtype)) for column in geometry.columns]
-    return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]))
+    return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]), stored_barycentrics)
 
 
 def host_triangles(triangles) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -552,7 +566,8 @@ def canonical_vertices(triangles: np.ndarray) -> np.ndarray:
     return np.take_along_axis(t, order[..., None], axis=1)
 
 
-def closest_hit(geometry, origin: Array, direction: Array, t_max: Array) -> Hit:
+def closest_hit(geometry, origin: Array, direction: Array, t_max: Array,
+                stored_barycentrics: bool = False) -> Hit:
     """Nearest intersection of one ray with a geometry (``TriangleSet``, BVH, ...).
 
     Dispatches to ``geometry.closest_hit``, so any pytree class with that method plugs in.
@@ -563,9 +578,14 @@ def closest_hit(geometry, origin: Array, direction: Array, t_max: Array) -> Hit:
         origin: (3,) ray origin.
         direction: (3,) direction, any non-zero length; ``t`` is in units of ``‖direction‖``.
         t_max: () upper bound on ``t`` (``inf`` for none).
+        stored_barycentrics: (static) for a hit that shading continues from; see
+            :func:`winner_hit`. Passed on only when True, so a geometry class without it
+            serves the other queries.
     Returns:
         :class:`Hit` (``t = inf``, ``prim = −1`` on a miss).
     """
+    if stored_barycentrics:
+        return geometry.closest_hit(origin, direction, t_max, stored_barycentrics=True)
     return geometry.closest_hit(origin, direction, t_max)
 
 

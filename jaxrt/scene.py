@@ -400,8 +400,9 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
         geometry = jax.tree.map(lambda a: a[prims], geometry)
     if shared_origin and isinstance(geometry, TriangleSet):
         hit = closest_hit_from_origin(geometry, o, d, t_max, scene.eye_planes)
-    else:
-        hit = closest_hit(geometry, o, d, t_max)
+    else:  # a hit shading continues from (not the eye's, not an emitter's): see winner_hit
+        hit = closest_hit(geometry, o, d, t_max,
+                          stored_barycentrics=not (emission_only or shared_origin))
     if prims is not None:  # back to the scene's triangle indices
         prim = jnp.where(hit.prim >= 0, prims[jnp.maximum(hit.prim, 0)], -1)
         if emission_only and scene.convex is not None:

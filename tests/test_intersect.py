@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from jaxrt.bvh import build_bvh
 from jaxrt.intersect import Hit, TriangleSet, any_hit, closest_hit, intersect_triangle, triangle_set
 from jaxrt.shared_origin import closest_hit_from_origin
 
@@ -194,6 +195,20 @@ def test_closest_and_any_hit_agree_with_per_triangle_reference(x64, scene_rays):
     # misses: t = inf, prim = -1, zero barycentrics and normal
     assert np.all(np.isinf(np.asarray(hit.t)[~h]))
     assert np.all(np.asarray(hit.ng)[~h] == 0) and np.all(np.asarray(hit.b1)[~h] == 0)
+
+
+@pytest.mark.parametrize("accel", ["brute", "bvh"])
+def test_stored_barycentrics_give_the_same_hit(scene_rays, accel):
+    # stored_barycentrics only changes where XLA keeps b1 and b2 (a path's next vertex, see
+    # winner_hit): every field of the Hit must be the same, bit for bit
+    tris = cornell_like().astype(np.float32)
+    geometry = triangle_set(tris) if accel == "brute" else build_bvh(tris, leaf_size=4)
+    o, d, t_max = (x.astype(np.float32) for x in scene_rays)
+    plain, stored = (jax.jit(jax.vmap(lambda o, d, t, s=s: closest_hit(
+        geometry, o, d, t, stored_barycentrics=s)))(o, d, t_max) for s in (False, True))
+    assert np.mean(np.asarray(plain.prim) >= 0) > 0.5
+    for name, a, b in zip(Hit._fields, plain, stored, strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
 
 
 def _from_origin(ts, o, d, t_max):
