@@ -148,6 +148,10 @@ def scatter(scene: Scene, est: Estimator, st: PathState, s: Stream) -> tuple[Pat
     base = 2 + DIMS_PER_VERTEX * (st.vertex - 1)
     tl = _light_term(scene, st.x, s.u2(base), s.u1(base + 2))
     wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, 1, tl.pdf_light, 1, tl.pdf_bsdf))
+    # stored once, as in `arrive`: fused into the (3,) radiance below, the weight (both pdfs,
+    # the light's table rows gathered) was computed per component (benchmarks/README.md,
+    # "twentieth session")
+    wl = computed_once(wl)
     # read by the state and, when the path ends here, by the fold into the pixel's four sums
     radiance = computed_once(st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0))
     b = bsdf_direction(scene, st.x, s.u2(base + 4))
