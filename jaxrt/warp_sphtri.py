@@ -56,6 +56,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
+from jaxrt.vecmath import dot_components
+
 SPHERICAL_TRIANGLE_MIN_SOLID_ANGLE = {"float32": 1e-4, "float64": 1e-6}
 """Solid angle (sr) below which the sampler falls back to area sampling, per dtype."""
 
@@ -93,8 +95,7 @@ def _mul(s: Array, p: Vec) -> Vec:
     return s * p[0], s * p[1], s * p[2]
 
 
-def _dot(p: Vec, q: Vec) -> Array:
-    return p[0] * q[0] + p[1] * q[1] + p[2] * q[2]
+_dot = dot_components
 
 
 def _cross(p: Vec, q: Vec) -> Vec:

@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxrt.estimators import compiler_options
-from jaxrt.vecmath import computed_once, to_world
+from jaxrt.vecmath import computed_once, dot, dot_components, to_world
 
 SPECIAL = [0.0, -0.0, 1.0, -2.5, np.inf, -np.inf, np.nan, 1.2e-38, -3.4e38]
 
@@ -147,3 +147,14 @@ def test_warps_of_an_azimuth_call_no_sine_or_cosine():
                  for p in w.params[0]]
         text = jax.jit(jax.vmap(w.sample)).lower(*args).compile(compiler_options()).as_text()
         assert " sine(" not in text and " cosine(" not in text, w.name
+
+
+def test_dot_components_is_the_inner_product_summed_left_to_right():
+    # the per-component form of dot: the same inner product, as tuples, lists or arrays, in
+    # the order a0 b0 + a1 b1 + a2 b2 (so replacing a hand-written sum keeps results bit for bit)
+    rng = np.random.default_rng(3)
+    a, b = rng.standard_normal((2, 1000, 3)).astype(np.float32)
+    got = np.asarray(jax.vmap(dot_components)(a, b))
+    np.testing.assert_array_equal(got, (a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]) + a[:, 2] * b[:, 2])
+    np.testing.assert_allclose(got, np.asarray(jax.vmap(dot)(a, b)), rtol=1e-5, atol=1e-6)
+    assert float(dot_components((1.0, 2.0, 3.0), [4.0, 5.0, 6.0, 99.0])) == 32.0

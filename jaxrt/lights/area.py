@@ -31,7 +31,7 @@ from jaxrt.lights.records import (
     safe_div,
     to_device,
 )
-from jaxrt.vecmath import area_to_solid_angle_pdf, device_array, dot, length
+from jaxrt.vecmath import area_to_solid_angle_pdf, device_array, dot, dot_components, length
 from jaxrt.warp import (
     square_to_spherical_triangle,
     square_to_spherical_triangle_pdf,
@@ -158,19 +158,19 @@ def sample_triangle_area(t: TriangleLights, j: Array, p: Array, u: Array) -> Kin
 def pdf_triangle_area(t: TriangleLights, j: Array, p: Array, wi: Array, p_light: Array) -> Array:
     """Density of :func:`sample_triangle_area` for ``wi`` hitting triangle ``j`` at ``p_light``.
 
-    Both inner products are written per component, not as :func:`~jaxrt.vecmath.dot`'s
-    reduction: ``p_light`` is a hit point stacked from three components, and under ``vmap``
-    XLA:CPU fused the stack, its transpose and the reduction over the axis of 3 into the kernel
-    of the MIS weight, which then ran ~10× slower per lane (23.9 → 2.4 ms per 8-spp 256² pass;
-    the MIS pass 1.12–1.18× and mis_one_sample 1.22× per CPU-second, benchmarks/README.md,
+    Both inner products are :func:`~jaxrt.vecmath.dot_components`, not
+    :func:`~jaxrt.vecmath.dot`'s reduction: ``p_light`` is a hit point stacked from three
+    components, and under ``vmap`` XLA:CPU fused the stack, its transpose and the reduction
+    over the axis of 3 into the kernel of the MIS weight, which then ran ~10× slower per lane
+    (23.9 → 2.4 ms per 8-spp 256² pass; the MIS pass 1.05–1.18× and mis_one_sample 1.22× per
+    CPU-second, paired, five and one runs, benchmarks/README.md,
     "twentieth session"). The light sample's side (:func:`sample_triangle_area`) is not: there
     the same rewrite ran 0.83–0.85×.
     """
     n, area = t.normal[j].astype(p.dtype), t.area[j].astype(p.dtype)
     to_y = [p_light[k].astype(p.dtype) - p[k] for k in range(3)]
-    d2 = to_y[0] * to_y[0] + to_y[1] * to_y[1] + to_y[2] * to_y[2]
-    cos_light = n[0] * wi[0] + n[1] * wi[1] + n[2] * wi[2]
-    return area_to_solid_angle_pdf(safe_div(jnp.ones_like(area), area), d2, cos_light)
+    return area_to_solid_angle_pdf(safe_div(jnp.ones_like(area), area),
+                                   dot_components(to_y, to_y), dot_components(n, wi))
 
 
 def sample_triangle_solid_angle(t: TriangleLights, j: Array, p: Array, u: Array) -> KindSample:
