@@ -81,7 +81,7 @@ def main(argv=None) -> None:
     run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
                      spp_total=a.spp, batch_size=64)
     run.compile(a.spp)
-    text = run.compiled[a.spp][0].as_text()
+    text = run.compiled[a.spp].as_text()
     where, bodies = source_lines(text)
     sums = jax.block_until_ready(run(run.zeros(), 0, a.spp))  # warm-up
     ms = kernel_times(lambda s: run(s, a.spp, a.spp), (sums,))

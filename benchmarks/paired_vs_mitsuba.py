@@ -80,7 +80,7 @@ def paired(spp: int = 32, rounds: int = 4, log=print, estimator: str = "mis") ->
     run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
                      spp_total=spp, batch_size=64)
     t_compile = run.compile(spp)
-    kernels = hlo_kernels(run.compiled[spp][0].as_text())
+    kernels = hlo_kernels(run.compiled[spp].as_text())
     sums = run(run.zeros(), 0, spp)  # warm-up
     mi = mc.import_mitsuba(mc.DEFAULT_VARIANT)
     desc = mc.cornell_scene_dict(SIZE, SIZE, "box", 1.0, mc.DEFAULT_VARIANT)

@@ -58,7 +58,7 @@ est = make_estimator(sys.argv[1])
 scene = prepare_scene(scenes.cornell_box(256, 256), est)
 run = ps.RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
                     spp_total=64, batch_size=64)
-args = (run.scenes[0], run.seeds[0], jnp.int32(0), run.firsts[0], run.zeros()[0])
+args = (run.scene, run.seed, jnp.int32(0), run.firsts, run.zeros())
 clock = lambda: (time.perf_counter(), time.process_time())
 t = [clock()]
 traced = ps.render_tiles.trace(*args, count=default_spp_per_pass(256 * 256, 64), **run.static)

@@ -206,13 +206,53 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
     return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
 
 
+@partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
+                                   "batch_size", "num_tiles", "mesh"))
+def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, est: Estimator,
+                       sampler: str, spp_total: int, count: int, tile_size: int,
+                       batch_size: int, num_tiles: int, mesh) -> Sums:
+    """:func:`render_tiles` on every device of ``mesh`` (one axis, ``"tiles"``) as ONE program.
+
+    Device k runs ``render_tiles`` for the ``num_tiles`` tiles from ``first_tiles[k]`` on its
+    own slice of ``sums`` (their leading axis split over the devices); ``scene``, ``seed`` and
+    ``start`` are replicated. One compile serves every device (a program per device was
+    compiled once each: two devices' compile 15.6–17.4 → 9.0–10.7 s), and the devices' passes
+    run side by side. On a 2-core CPU two devices ran the 256² pass 1.02–1.16× as fast per
+    CPU-second as one (1.07–1.23× per wall second; XLA:CPU's splitting of each kernel over two
+    threads costs 13–20 % of the CPU) and compiled ~1.2× as long (benchmarks/README.md,
+    "twenty-first session"). The numbers are one device's, bit for bit: each device's program
+    is ``render_tiles``.
+    """
+    static = dict(est=est, sampler=sampler, spp_total=spp_total, count=count,
+                  tile_size=tile_size, batch_size=batch_size, num_tiles=num_tiles)
+
+    def one_device(sc, sd, st, first, acc):
+        return render_tiles(sc, sd, st, first[0], acc, **static)
+
+    split, whole = jax.sharding.PartitionSpec("tiles"), jax.sharding.PartitionSpec()
+    return _shard_map(one_device, mesh, (whole, whole, whole, split, split), split)(
+        scene, seed, start, first_tiles, sums)
+
+
+def _shard_map(f, mesh, in_specs, out_specs):
+    """``jax.shard_map`` without its replication check (the loops' carries are per device)."""
+    if hasattr(jax, "shard_map"):
+        return jax.shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs,
+                             check_vma=False)
+    from jax.experimental.shard_map import shard_map  # jax < 0.7
+
+    return shard_map(f, mesh=mesh, in_specs=in_specs, out_specs=out_specs, check_rep=False)
+
+
 class RenderPass:
     """One progressive pass, split over processes and devices: each device of each process
-    runs the same compiled program on its own contiguous range of tiles, and carries its
-    pixels' sums from pass to pass (so the image depends on neither count).
+    runs the same program on its own contiguous range of tiles, and carries its pixels' sums
+    from pass to pass (so the image depends on neither count).
 
     ``shard = (process index, process count)``: this process's devices take the tile ranges
-    ``index · len(devices) …`` of ``count · len(devices)`` equal ranges.
+    ``index · len(devices) …`` of ``count · len(devices)`` equal ranges. Several devices run
+    as one SPMD program (:func:`render_tiles_split`), compiled once; the carry is then one
+    array whose leading axis holds each device's lanes in turn.
     """
 
     def __init__(self, scene: Scene, seed: int, devices: list, tile_size: int,
@@ -226,53 +266,68 @@ class RenderPass:
         self.tile_size = tile_size
         self.num_pixels = num_pixels
         self.dtype = scene.triangles.dtype
-        self.devices = devices
+        self.devices = list(devices)
         self.static = dict(static, tile_size=tile_size, num_tiles=self.per_device)
         scene = scene.with_own_derived_state()  # a dataclasses.replace copy's may be stale
+        firsts = np.asarray([(rank * len(devices) + k) * self.per_device
+                             for k in range(len(devices))], np.int32)
+        if len(devices) == 1:
+            self.mesh = None
+            self._whole = self._split = devices[0]
+            firsts = firsts[0]
+        else:
+            self.mesh = jax.sharding.Mesh(np.asarray(devices), ("tiles",))
+            self._whole = jax.sharding.NamedSharding(self.mesh, jax.sharding.PartitionSpec())
+            self._split = jax.sharding.NamedSharding(self.mesh,
+                                                     jax.sharding.PartitionSpec("tiles"))
         # the scene's arrays are copied to every device once, not once per pass
-        self.scenes = [jax.device_put(scene, d) for d in devices]
-        self.seeds = [jax.device_put(np.uint32(seed), d) for d in devices]
-        self.firsts = [jax.device_put(np.int32((rank * len(devices) + k) * self.per_device), d)
-                       for k, d in enumerate(devices)]
-        self.compiled: dict[int, list] = {}  # samples per pass -> one executable per device
+        self.scene = jax.device_put(scene, self._whole)
+        self.seed = jax.device_put(np.uint32(seed), self._whole)
+        self.firsts = jax.device_put(firsts, self._split)
+        self.compiled: dict[int, object] = {}  # samples per pass -> the executable
 
-    def zeros(self) -> list[Sums]:
-        """The carry before the first pass: zero sums on every device."""
-        return [jax.device_put(zero_sums((self.lanes,), self.dtype), d) for d in self.devices]
+    def zeros(self) -> Sums:
+        """The carry before the first pass: zero sums of every device's lanes."""
+        return jax.device_put(zero_sums((self.lanes * len(self.devices),), self.dtype),
+                              self._split)
 
     def compile(self, count: int) -> float:
-        """Compile the pass for ``count`` samples per pixel on every device; returns seconds."""
+        """Compile the pass for ``count`` samples per pixel (one program for every device);
+        returns seconds."""
         t0 = time.perf_counter()
         # read from jaxrt's program cache when the jaxrt command has set one up (no tracing,
         # no option probe); else the options' probe compiles on another thread while this
         # one traces (the first time in a process)
-        self.compiled[count] = [program_cache.compile_cached(*job, resolve=compiler_options_soon)
-                                for job in self.jobs(count)]
+        self.compiled[count] = program_cache.compile_cached(*self.job(count),
+                                                            resolve=compiler_options_soon)
         return time.perf_counter() - t0
 
-    def jobs(self, count: int) -> list:
-        """``(function, arguments, static arguments, compiler options, device)`` of the
-        program each device runs for ``count`` samples per pixel (the options jaxrt asks for,
+    def job(self, count: int) -> tuple:
+        """``(function, arguments, static arguments, compiler options, devices)`` of the
+        program for ``count`` samples per pixel (the options jaxrt asks for,
         :data:`~jaxrt.estimators.COMPILER_OPTIONS`, as the program cache's key names them;
         it compiles with those XLA accepts, :func:`~jaxrt.estimators.compiler_options`)."""
-        return [(render_tiles, (sc, sd, jax.device_put(np.int32(0), d), f, z),
-                 dict(count=count, **self.static), dict(estimators.COMPILER_OPTIONS), d)
-                for sc, sd, f, d, z in zip(self.scenes, self.seeds, self.firsts, self.devices,
-                                           self.zeros(), strict=True)]
+        fn, static = render_tiles, dict(count=count, **self.static)
+        if self.mesh is not None:
+            fn, static = render_tiles_split, dict(static, mesh=self.mesh)
+        return (fn, (self.scene, self.seed, self._start(0), self.firsts, self.zeros()),
+                static, dict(estimators.COMPILER_OPTIONS), self.devices)
 
-    def __call__(self, sums: list[Sums], start: int, count: int) -> list[Sums]:
+    def _start(self, start: int):
+        return jax.device_put(np.int32(start), self._whole)
+
+    def __call__(self, sums: Sums, start: int, count: int) -> Sums:
         """The carry ``sums`` advanced by samples ``[start, start + count)`` (waits for it)."""
         if count not in self.compiled:
             self.compile(count)
-        # dispatch to every device first (asynchronously), then wait for all
-        outs = [exe(sc, sd, jax.device_put(np.int32(start), d), f, acc)
-                for exe, sc, sd, f, d, acc in zip(self.compiled[count], self.scenes, self.seeds,
-                                                  self.firsts, self.devices, sums, strict=True)]
-        return jax.block_until_ready(outs)
+        out = self.compiled[count](self.scene, self.seed, self._start(start), self.firsts,
+                                   sums)
+        return jax.block_until_ready(out)
 
-    def host(self, sums: list[Sums]) -> Sums:
+    def host(self, sums: Sums) -> Sums:
         """The carry as numpy arrays over this process's tile range (pixels in order, padded
         past the image's end when the tiles do not fill the last range)."""
         keep = self.per_device * self.tile_size
-        return Sums(*(np.concatenate([np.asarray(a)[:keep] for a in parts])
-                      for parts in zip(*sums, strict=True)))
+        n = len(self.devices)
+        return Sums(*(np.asarray(a).reshape((n, self.lanes) + a.shape[1:])[:, :keep]
+                      .reshape((n * keep,) + a.shape[1:]) for a in sums))

@@ -98,10 +98,12 @@ def _trace_config() -> str:
     return repr(tuple(x for x in ctx if " at 0x" not in repr(x)))
 
 
-def program_key(fn, args: tuple, static: dict, options: dict, device) -> str:
-    """The cache key of ``fn`` compiled for ``args`` (arrays), ``static`` and ``options``."""
+def program_key(fn, args: tuple, static: dict, options: dict, devices) -> str:
+    """The cache key of ``fn`` compiled for ``args`` (arrays), ``static`` and ``options`` on
+    ``devices`` (one device or a list)."""
     import jaxlib
 
+    devices = _device_list(devices)
     leaves, treedef = jax.tree.flatten(args)
     parts = [
         _MAGIC.decode(), source_digest(), f"jax {jax.__version__} jaxlib {jaxlib.__version__} "
@@ -109,16 +111,17 @@ def program_key(fn, args: tuple, static: dict, options: dict, device) -> str:
         f"{fn.__module__}.{getattr(fn, '__qualname__', fn.__name__)}",
         repr(sorted(static.items())), repr(sorted(options.items())), str(treedef),
         *(f"{jax.typeof(x)} {getattr(x, 'sharding', None)}" for x in leaves),
-        f"{device.platform} {device.client.platform_version} {device.device_kind} "
-        f"{device.id} {jax.process_index()}/{jax.process_count()}", _host_cpu()]
+        *(f"{d.platform} {d.client.platform_version} {d.device_kind} {d.id}" for d in devices),
+        f"{jax.process_index()}/{jax.process_count()}", _host_cpu()]
     return hashlib.sha256("\n".join(parts).encode()).hexdigest()
 
 
-def compile_cached(fn, args: tuple, static: dict, options: dict, device, resolve=None):
+def compile_cached(fn, args: tuple, static: dict, options: dict, devices, resolve=None):
     """``fn.lower(*args, **static).compile(options)``, read from the cache when it holds it.
 
     ``fn`` is a ``jax.jit`` function with ``static`` as its static arguments; ``args`` are
-    committed to ``device``. ``options`` are the compiler options the key names; ``resolve``,
+    committed to ``devices`` (a device, or the list of devices one SPMD program runs on).
+    ``options`` are the compiler options the key names; ``resolve``,
     when given, is called only when the program must be compiled, before it is traced, and
     gives the options to compile with, a dict or a ``concurrent.futures.Future`` of one
     (waited for after lowering, so that it can be found beside the trace). jaxrt's passes
@@ -129,11 +132,11 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, device, resolve
     """
     if DIRECTORY is None:
         return _compile(fn, args, static, options, resolve)
-    key = program_key(fn, args, static, options, device)
+    key = program_key(fn, args, static, options, devices)
     path = Path(DIRECTORY) / (key + _SUFFIX)
     in_tree = jax.tree.structure((args, {}))
     if path.exists():
-        compiled = _load(path, key, in_tree, device)
+        compiled = _load(path, key, in_tree, devices)
         if compiled is not None:
             STATS["hits"] += 1
             return compiled
@@ -173,6 +176,12 @@ def _watch_xla_cache() -> None:
         jax.monitoring.register_event_listener(_count_xla_cache_hit)
 
 
+#: numpy names a program file may hold: dtypes, and arrays (a several-device program's mesh
+#: holds its devices as an object array, whose elements go through the same checks)
+_NUMPY = {("numpy", "dtype"), ("numpy", "ndarray"), ("numpy._core.multiarray", "_reconstruct"),
+          ("numpy.core.multiarray", "_reconstruct")}
+
+
 class _Unpickler(pickle.Unpickler):
     """``serialize_executable``'s unpickler, resolving only jax/jaxlib/jaxrt names."""
 
@@ -182,8 +191,7 @@ class _Unpickler(pickle.Unpickler):
 
     def find_class(self, module, name):
         top = module.split(".")[0]
-        if "." in name or not (top in ("jax", "jaxlib", "jaxrt")
-                               or (module, name) == ("numpy", "dtype")):
+        if "." in name or not (top in ("jax", "jaxlib", "jaxrt") or (module, name) in _NUMPY):
             raise pickle.UnpicklingError(f"{module}.{name} is not allowed in a program file")
         obj = super().find_class(module, name)
         if isinstance(obj, types.ModuleType):  # e.g. jax._src.x.os: never a way out
@@ -203,7 +211,11 @@ class _Unpickler(pickle.Unpickler):
         raise pickle.UnpicklingError(f"unknown persistent id {pid[0]!r}")
 
 
-def _load(path: Path, key: str, in_tree, device):
+def _device_list(devices) -> list:
+    return list(devices) if isinstance(devices, (list, tuple)) else [devices]
+
+
+def _load(path: Path, key: str, in_tree, devices):
     """The compiled program in ``path``, or None (with a warning) if it cannot be used."""
     try:
         data = path.read_bytes()
@@ -214,7 +226,7 @@ def _load(path: Path, key: str, in_tree, device):
         if hashlib.sha256(payload).hexdigest() != digest.decode():
             raise ValueError("checksum mismatch (truncated or corrupt)")
         unloaded, args_flat, no_kwargs, file_in_tree, out_tree = _Unpickler(
-            io.BytesIO(payload), device.client, [device]).load()
+            io.BytesIO(payload), _device_list(devices)[0].client, _device_list(devices)).load()
         if file_in_tree != in_tree:
             raise ValueError("argument structure differs")
         compiled = jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_flat),

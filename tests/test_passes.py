@@ -122,7 +122,7 @@ def test_pass_compiles_without_ynn_reductions():
     run = RenderPass(scene, 7, jax.devices()[:1], 256, est=est, sampler="independent",
                      spp_total=1, batch_size=64)
     run.compile(1)
-    text = run.compiled[1][0].as_text()
+    text = run.compiled[1].as_text()
     assert "fusion(" in text and "__ynn_fusion" not in text
 
 

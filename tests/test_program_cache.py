@@ -31,8 +31,7 @@ def _key(scene, estimator="mis", count=2, spp=2):
     est = make_estimator(estimator)
     run = RenderPass(prepare_scene(scene, est), 0, jax.local_devices()[:1], 256, est=est,
                      sampler="independent", spp_total=spp, batch_size=64)
-    (job,) = run.jobs(count)
-    return program_cache.program_key(*job)
+    return program_cache.program_key(*run.job(count))
 
 
 def _files(directory):
@@ -76,6 +75,29 @@ def test_a_hit_compiles_nothing_not_even_the_option_probe(tmp_path, compiles_in_
     compiles, stats = compiles_in_fresh_process(body, directory)
     assert stats["hits"] == 1 and stats["misses"] == 0
     assert compiles == 0
+
+
+def test_two_devices_compile_one_program_and_a_hit_reads_it(tmp_path,
+                                                          compiles_in_fresh_process):
+    """Two CPU devices run the pass as one SPMD program: one compile for both (a program per
+    device compiled twice), stored once and read back by a second process, bit for bit."""
+    body = """
+        jax.config.update("jax_num_cpu_devices", 2)
+        from jaxrt import program_cache, scenes
+        from jaxrt.render import render
+        program_cache.set_directory(sys.argv[1])
+        r = render(scenes.cornell_box(20, 16), "mis", spp=2, seed=3, devices=2,
+                   progress=False)
+        print(json.dumps([len(COMPILES), program_cache.STATS, r.image.tolist()]))
+    """
+    directory = str(tmp_path / "programs")
+    compiles, stats, first = compiles_in_fresh_process(body, directory)
+    assert compiles == 2 and stats["misses"] == 1 and stats["stores"] == 1  # probe and pass
+    compiles, stats, again = compiles_in_fresh_process(body, directory)
+    assert stats["hits"] == 1 and stats["misses"] == 0 and compiles == 0
+    assert again == first
+    one = render(scenes.cornell_box(20, 16), "mis", spp=2, seed=3, devices=1, progress=False)
+    assert np.array_equal(np.asarray(first, np.float32), one.image)
 
 
 def test_every_static_change_misses(monkeypatch):
