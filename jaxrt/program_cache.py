@@ -12,15 +12,17 @@ traced program is a function of, known before tracing:
 - the arguments' pytree structure, which carries the scene's static fields (BSDF and light
   kinds, light counts, sampling modes, accelerator, image size), and every array's shape,
   dtype and device;
-- the backend (platform and version, device kind and id, process) and the host CPU (model
-  and instruction-set flags: the executable is machine code for this CPU).
+- the backend (platform and version, the kind and id of each device the program runs on,
+  process) and the host CPU (model and instruction-set flags: the executable is machine code
+  for this CPU).
 
 A hit deserialises the XLA executable (~0.3 s) and runs it: the same machine code as a fresh
 compile, hence bit-identical images. A file that cannot be read (truncated, corrupt, from
 another jax) is ignored with a warning and replaced. Payloads are checked against a SHA-256
 before they are unpickled, and the unpickler resolves only classes and functions of jax,
-jaxlib, numpy's ``dtype`` and jaxrt (never a module) (the executable format of ``jax.experimental.
-serialize_executable``); like JAX's own cache, the directory must be writable only by you.
+jaxlib, numpy's ``dtype`` and arrays, and jaxrt (never a module) (the executable format of
+``jax.experimental.serialize_executable``); like JAX's own cache, the directory must be
+writable only by you.
 
 The cache is off unless a directory is set: the ``jaxrt`` command sets
 ``$XDG_CACHE_HOME/jaxrt/programs`` (else ``~/.cache/jaxrt/programs``) and turns it off with
