@@ -172,8 +172,11 @@ def step_layout(num_tiles: int, batch_size: int) -> tuple[int, int]:
     return per_step, -(-num_tiles // per_step)
 
 
-@partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
-                                   "batch_size", "num_tiles"))
+#: the static arguments of a pass (:func:`render_tiles`; :func:`render_tiles_split` adds its mesh)
+PASS_STATIC = ("est", "sampler", "spp_total", "count", "tile_size", "batch_size", "num_tiles")
+
+
+@partial(jax.jit, static_argnames=PASS_STATIC)
 def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Estimator,
                  sampler: str, spp_total: int, count: int, tile_size: int, batch_size: int,
                  num_tiles: int) -> Sums:
@@ -206,8 +209,7 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
     return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), out)
 
 
-@partial(jax.jit, static_argnames=("est", "sampler", "spp_total", "count", "tile_size",
-                                   "batch_size", "num_tiles", "mesh"))
+@partial(jax.jit, static_argnames=PASS_STATIC + ("mesh",))
 def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, est: Estimator,
                        sampler: str, spp_total: int, count: int, tile_size: int,
                        batch_size: int, num_tiles: int, mesh) -> Sums:
@@ -223,8 +225,8 @@ def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, es
     "twenty-first session"). The numbers are one device's, bit for bit: each device's program
     is ``render_tiles``.
     """
-    static = dict(est=est, sampler=sampler, spp_total=spp_total, count=count,
-                  tile_size=tile_size, batch_size=batch_size, num_tiles=num_tiles)
+    values = (est, sampler, spp_total, count, tile_size, batch_size, num_tiles)
+    static = dict(zip(PASS_STATIC, values, strict=True))
 
     def one_device(sc, sd, st, first, acc):
         return render_tiles(sc, sd, st, first[0], acc, **static)

@@ -123,10 +123,10 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, devices, resolv
 
     ``fn`` is a ``jax.jit`` function with ``static`` as its static arguments; ``args`` are
     committed to ``devices`` (a device, or the list of devices one SPMD program runs on).
-    ``options`` are the compiler options the key names; ``resolve``,
-    when given, is called only when the program must be compiled, before it is traced, and
-    gives the options to compile with, a dict or a ``concurrent.futures.Future`` of one
-    (waited for after lowering, so that it can be found beside the trace). jaxrt's passes
+    ``options`` are the compiler options the key names; ``resolve``, when given, is called
+    only when the program must be compiled, before it is traced, and gives the options to
+    compile with, a dict or a ``concurrent.futures.Future`` of one (waited for after
+    lowering, so that it can be found beside the trace). jaxrt's passes
     name the options they ask for and resolve them to the ones this XLA accepts
     (:func:`jaxrt.estimators.compiler_options_soon`): the accepted set is a function of the
     asked set and the jaxlib version, both in the key, so a hit needs no probe.
@@ -219,6 +219,7 @@ def _device_list(devices) -> list:
 
 def _load(path: Path, key: str, in_tree, devices):
     """The compiled program in ``path``, or None (with a warning) if it cannot be used."""
+    devices = _device_list(devices)
     try:
         data = path.read_bytes()
         header, _, payload = data.partition(b"\n\n")
@@ -228,7 +229,7 @@ def _load(path: Path, key: str, in_tree, devices):
         if hashlib.sha256(payload).hexdigest() != digest.decode():
             raise ValueError("checksum mismatch (truncated or corrupt)")
         unloaded, args_flat, no_kwargs, file_in_tree, out_tree = _Unpickler(
-            io.BytesIO(payload), _device_list(devices)[0].client, _device_list(devices)).load()
+            io.BytesIO(payload), devices[0].client, devices).load()
         if file_in_tree != in_tree:
             raise ValueError("argument structure differs")
         compiled = jax.stages.Compiled(unloaded.load(), [], in_tree.unflatten(args_flat),
