@@ -219,11 +219,11 @@ def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, es
     own slice of ``sums`` (their leading axis split over the devices); ``scene``, ``seed`` and
     ``start`` are replicated. One compile serves every device (a program per device was
     compiled once each: two devices' compile 15.6–17.4 → 9.0–10.7 s), and the devices' passes
-    run side by side. On a 2-core CPU two devices ran the 256² pass 1.02–1.16× as fast per
-    CPU-second as one (1.07–1.23× per wall second; XLA:CPU's splitting of each kernel over two
-    threads costs 13–20 % of the CPU) and compiled ~1.2× as long (benchmarks/README.md,
-    "twenty-first session"). The numbers are one device's, bit for bit: each device's program
-    is ``render_tiles``.
+    run side by side. On a 2-core CPU two devices ran the 256² pass 0.93–1.20× as fast per
+    CPU-second as one (0.98–1.23× per wall second; whole renders 0.87–1.19×, within the
+    machine's drift) and compiled ~1.2× as long, ~0.9 s of it in XLA's SPMD partitioner
+    (benchmarks/README.md, "twenty-first" and "twenty-second session"). The numbers are one
+    device's, bit for bit: each device's program is ``render_tiles``.
     """
     values = (est, sampler, spp_total, count, tile_size, batch_size, num_tiles)
     static = dict(zip(PASS_STATIC, values, strict=True))
