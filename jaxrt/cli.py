@@ -19,7 +19,8 @@ import threading
 import warnings
 from pathlib import Path
 
-from jaxrt.launcher import EXIT_INTERRUPTED, launch
+from jaxrt.ctrl_c import EXIT_INTERRUPTED, CtrlC
+from jaxrt.launcher import launch
 
 #: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
 #: argument checks need no JAX (tests/test_cli_ux.py checks they equal the library's).
@@ -220,13 +221,12 @@ def _render(args) -> int:
 
 
 def _render_interruptibly(args, scene, spp, params) -> int:
-    """Render in a worker thread so that Ctrl-C reaches this (main) thread at once: the first
-    stops the render after its pass and writes what it has; during compilation (nothing to
-    save) or a second time, it exits at once."""
+    """Render in a worker thread so that Ctrl-C reaches this (main) thread's handler at once
+    (:mod:`jaxrt.ctrl_c`): the first stops the render after its pass and this thread writes
+    what it has; during compilation (nothing to save) or a second time, it exits at once."""
     from jaxrt.render import RenderInterrupted, render
 
-    stop, finished = threading.Event(), threading.Event()
-    passes_done = []
+    ctrl_c, finished = args.ctrl_c, threading.Event()
     box: dict = {}
 
     def work():
@@ -234,29 +234,22 @@ def _render_interruptibly(args, scene, spp, params) -> int:
             box["result"] = render(scene, args.estimator, spp=spp, seed=args.seed,
                                    sampler=args.sampler, time_budget=args.time_budget,
                                    target_error=args.target_error, progress=not args.quiet,
-                                   spp_per_pass=args.spp_per_pass, stop=stop,
-                                   on_pass=passes_done.append, **params)
+                                   spp_per_pass=args.spp_per_pass, stop=ctrl_c.stop,
+                                   on_pass=ctrl_c.passes_done.append, **params)
         except BaseException as e:  # handed to the main thread
             box["error"] = e
         finally:
             finished.set()
 
-    # a daemon thread: _quit_now must not wait for a compilation it cannot interrupt
+    ctrl_c.stage = "rendering"
+    # a daemon thread: quit_now must not wait for a compilation it cannot interrupt
     threading.Thread(target=work, name="jaxrt-render", daemon=True).start()
-    # (Event.wait, not Thread.join: a KeyboardInterrupt inside join can leave the thread
-    # looking finished while it runs)
-    try:
-        while not finished.wait(0.1):
-            pass
-    except KeyboardInterrupt:
-        if not passes_done:
-            _quit_now("jaxrt: interrupted before the first pass finished; nothing written")
-        stop.set()
-        try:
-            while not finished.wait(0.1):
-                pass
-        except KeyboardInterrupt:
-            _quit_now("jaxrt: interrupted twice; nothing written")
+    # a timed wait: the kernel may deliver SIGINT to any of the process's threads, and
+    # Python runs the handler only when the main thread next runs bytecode (an untimed wait
+    # would run it after the render, as if the image were complete)
+    while not finished.wait(0.1):
+        pass
+    ctrl_c.stage = "finishing"
     if args.process_id != 0:  # process 0 reports and writes
         e = box.get("error")
         if e is not None and not isinstance(e, RenderInterrupted):
@@ -316,14 +309,6 @@ def _without_option(argv: list, name: str) -> list:
         elif not token.startswith(name + "="):
             out.append(token)
     return out
-
-
-def _quit_now(message: str):
-    """Exit at once, without waiting for the worker thread (XLA cannot be interrupted)."""
-    print("\n" + message, file=sys.stderr)
-    sys.stdout.flush()
-    sys.stderr.flush()
-    os._exit(EXIT_INTERRUPTED)
 
 
 def plain_text(rst: str) -> str:
@@ -468,9 +453,16 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 def main(argv=None) -> int:
     """Entry point of the ``jaxrt`` console script."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
-    args.argv = argv
+    # Ctrl-C quits at once until the command has something to save (jaxrt.ctrl_c)
+    with CtrlC() as ctrl_c:
+        argv = list(sys.argv[1:] if argv is None else argv)
+        args = build_parser().parse_args(argv)
+        args.argv, args.ctrl_c = argv, ctrl_c
+        return _run_command(args)
+
+
+def _run_command(args) -> int:
+    """``args.func(args)``, with its errors as one line and an exit status."""
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _show_warning
@@ -481,7 +473,7 @@ def main(argv=None) -> int:
     except (ValueError, OSError) as e:  # file errors name the file and the entry
         print(f"jaxrt: error: {e}", file=sys.stderr)
         return EXIT_USAGE
-    except KeyboardInterrupt:
+    except KeyboardInterrupt:  # not from SIGINT (jaxrt.ctrl_c handles that): still one line
         print("\njaxrt: interrupted; nothing written", file=sys.stderr)
         return EXIT_INTERRUPTED
 

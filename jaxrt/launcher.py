@@ -4,8 +4,9 @@ The launcher starts N copies of the command, each joining JAX's multi-process ru
 coordinator on localhost (``--coordinator``, ``--num-processes``, ``--process-id``), and
 waits for them. Process 0 prints and writes the files and decides when all stop; the
 launcher forwards Ctrl-C to it alone, and cleans up after it: a process that fails stops the
-others, and processes still running once process 0 is done are stopped after a grace period
-(SIGTERM, then SIGKILL: JAX's distributed runtime catches SIGTERM).
+others, as does process 0's exit on Ctrl-C, and processes still running once process 0 is
+done are stopped after a grace period (SIGTERM, then SIGKILL: JAX's distributed runtime
+catches SIGTERM).
 """
 
 from __future__ import annotations
@@ -18,8 +19,8 @@ import sys
 import tempfile
 import time
 
-#: Exit status of a process stopped by Ctrl-C (128 + SIGINT, as a shell reports it).
-EXIT_INTERRUPTED = 130
+from jaxrt.ctrl_c import EXIT_INTERRUPTED
+
 #: Seconds a process gets to exit on its own (after process 0, or after SIGTERM).
 STOP_GRACE_S = 5
 
@@ -28,8 +29,9 @@ def launch(argv: list[str], processes: int) -> int:
     """``--processes N``: run N local processes of this command that render together (JAX's
     multi-process runtime, coordinator on localhost); process 0 prints and writes the files.
     Ctrl-C is forwarded to process 0, which stops all after the pass (or at once during
-    compilation); the first failure stops the others, and once process 0 is done the others
-    get :data:`STOP_GRACE_S` to exit, then SIGTERM, then SIGKILL.
+    start-up and compilation); the first failure, or process 0's exit on Ctrl-C, stops the
+    others at once (SIGTERM, then SIGKILL after :data:`STOP_GRACE_S`), and once process 0 is
+    done the others get :data:`STOP_GRACE_S` to exit, then SIGTERM, then SIGKILL.
 
     ``argv``: the command's arguments (without ``--processes``), given to every process with
     its ``--coordinator``, ``--num-processes`` and ``--process-id``. Returns the exit status:
@@ -81,7 +83,10 @@ def launch(argv: list[str], processes: int) -> int:
                         zero_done = time.monotonic()
                     elif zero_done:  # e.g. aborted when process 0 left: not a failure
                         stopped.add(rank)
-                    if child.returncode not in (0, EXIT_INTERRUPTED):
+                    # a failure stops the others at once; so does process 0's Ctrl-C (it
+                    # wrote what there was: the others have nothing left to do)
+                    if (child.returncode not in (0, EXIT_INTERRUPTED)
+                            or (rank == 0 and child.returncode == EXIT_INTERRUPTED)):
                         stopped |= _terminate(children, codes, terminated_at)
             # once process 0 is done (written, or quit during compilation) the others have
             # nothing left to do: a few seconds to exit, then they are stopped

@@ -226,5 +226,65 @@ def test_ctrl_c_during_compilation_stops_every_process_at_once(tmp_path):
     elapsed = time.monotonic() - t0
     assert proc.returncode == 130, err[-2000:]
     assert "nothing written" in err.strip().splitlines()[-1]
-    assert elapsed < 7, elapsed  # process 0 quits at once, the other within 5 s
+    # process 0 quits at once and the launcher stops the other at once (0.2-0.5 s measured;
+    # SIGKILL follows a SIGTERM it ignores after 5 s)
+    assert elapsed < 7, elapsed
+    assert not (tmp_path / "out.exr").exists()
+
+
+INTERRUPTED_AFTER_JOINING = """
+import pathlib, sys, time
+from jaxrt import cli
+real = cli._load
+def load_then_wait(args):
+    scene = real(args)
+    pathlib.Path(sys.argv[1]).touch()
+    time.sleep(120)  # Ctrl-C comes here: JAX's distributed runtime has started
+    return scene
+cli._load = load_then_wait
+sys.exit(cli.main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.slow  # ~10 s: process 1 compiles
+def test_ctrl_c_after_joining_the_runtime_exits_at_once(tmp_path):
+    """Process 0 interrupted after it joined JAX's distributed runtime, while process 1
+    compiles: it exits at once. Left to Python's KeyboardInterrupt, it printed "nothing
+    written" and then waited in the runtime's exit handler, at a shutdown barrier, for
+    process 1 (42 s in CI; up to the barrier's 300 s timeout)."""
+    import signal
+    import socket
+    import time
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    common = ["render", "--width", "32", "--height", "32", "--no-compile-cache", "-o",
+              str(tmp_path / "out.exr"), "--coordinator", f"127.0.0.1:{port}",
+              "--num-processes", "2"]
+    ready = tmp_path / "ready"
+    zero = subprocess.Popen([sys.executable, "-c", INTERRUPTED_AFTER_JOINING, str(ready),
+                             *common, "--process-id", "0"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    one = subprocess.Popen([sys.executable, "-m", "jaxrt.cli", *common, "--process-id", "1",
+                            "-q"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 180
+        while not ready.exists():
+            assert time.monotonic() < deadline and zero.poll() is None, zero.stderr.read()
+            time.sleep(0.02)
+        zero.send_signal(signal.SIGINT)
+        t0 = time.monotonic()
+        try:
+            _, err = zero.communicate(timeout=30)
+        except subprocess.TimeoutExpired:
+            err = ""
+        elapsed = time.monotonic() - t0
+    finally:
+        for p in (zero, one):
+            p.kill()
+            p.wait()
+    assert elapsed < 3, elapsed
+    assert zero.returncode == 130, err[-2000:]
+    assert err.strip().splitlines()[-1] == "jaxrt: interrupted; nothing written", err[-2000:]
     assert not (tmp_path / "out.exr").exists()
