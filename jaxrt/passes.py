@@ -225,8 +225,9 @@ def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, es
     (benchmarks/README.md, "twenty-first" and "twenty-second session"). The numbers are one
     device's, bit for bit: each device's program is ``render_tiles``.
     """
-    values = (est, sampler, spp_total, count, tile_size, batch_size, num_tiles)
-    static = dict(zip(PASS_STATIC, values, strict=True))
+    static = dict(est=est, sampler=sampler, spp_total=spp_total, count=count,
+                  tile_size=tile_size, batch_size=batch_size, num_tiles=num_tiles)
+    assert static.keys() == set(PASS_STATIC), "render_tiles' static arguments changed"
 
     def one_device(sc, sd, st, first, acc):
         return render_tiles(sc, sd, st, first[0], acc, **static)
