@@ -30,6 +30,7 @@ finishing (writing the files)   noted, not acted on: the writes are atomic and s
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -43,9 +44,13 @@ def quit_now(message: str):
     """Print ``message`` on its own line and exit with :data:`EXIT_INTERRUPTED` at once:
     without waiting for a worker thread (XLA cannot be interrupted) or for exit handlers
     (JAX's distributed runtime waits for the other processes in one)."""
-    print("\n" + message, file=sys.stderr)
-    sys.stdout.flush()
-    sys.stderr.flush()
+    # the handler may run while the main thread is inside a write to one of these streams:
+    # a flush may then fail ("reentrant call"), and the message goes to the descriptor itself
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    with contextlib.suppress(OSError):
+        os.write(2, f"\n{message}\n".encode())
     os._exit(EXIT_INTERRUPTED)
 
 
