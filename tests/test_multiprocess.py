@@ -24,6 +24,15 @@ def _run(args) -> str:
     return proc.stdout
 
 
+def _free_port() -> str:
+    """A port on localhost that is free now (for a coordinator)."""
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return str(sock.getsockname()[1])
+
+
 @pytest.mark.slow  # ~30 s: four compiles in subprocesses
 def test_two_processes_equal_one_bit_for_bit(tmp_path):
     # 24 × 24 pixels = 3 tiles of 256: process 0 renders tiles 0 and 1, process 1 tile 2 and
@@ -79,11 +88,7 @@ def test_a_stop_flag_set_between_passes_stops_every_process_together():
     """Process 0's Ctrl-C flag, set between passes, ends the loop only through the agreed
     decision: leaving on its own, it waited in the final gather while process 1 waited for
     it in the next pass's agreement (a deadlock that hung CI's Ctrl-C test)."""
-    import socket
-
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = str(sock.getsockname()[1])
+    port = _free_port()
     procs = [subprocess.Popen([sys.executable, "-c", AGREE, str(rank), port],
                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
              for rank in range(2)]
@@ -253,12 +258,9 @@ def test_ctrl_c_after_joining_the_runtime_exits_at_once(tmp_path):
     written" and then waited in the runtime's exit handler, at a shutdown barrier, for
     process 1 (42 s in CI; up to the barrier's 300 s timeout)."""
     import signal
-    import socket
     import time
 
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = _free_port()
     common = ["render", "--width", "32", "--height", "32", "--no-compile-cache", "-o",
               str(tmp_path / "out.exr"), "--coordinator", f"127.0.0.1:{port}",
               "--num-processes", "2"]
