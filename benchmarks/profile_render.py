@@ -28,6 +28,13 @@ to the full render by construction. Levels:
 It also prints what the compiled full program contains (fusions, while loops, gathers). With
 ``--trace`` it records one full render with ``jax.profiler`` and lists the kernels (XLA:CPU
 thunks) that take the most time.
+
+Out of date since the eighth session: levels 3 and 8 still call the general
+``scene.intersect``, while the real pass finds camera hits by the eye's planes and the BSDF
+ray against occluders and emitters only, and the stage scopes wrap module attributes the pass
+no longer calls through; on 2026-12-05 (AMD family 25) the ladder read negative costs for
+three stages and left 80 % of the kernel time in "other". For where a pass's time goes today,
+use ``benchmarks/kernel_sources.py`` (kernel time and distinct kernels by source line).
 """
 
 from __future__ import annotations
