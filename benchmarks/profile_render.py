@@ -1,40 +1,48 @@
-"""Where one MIS camera sample's time goes: cumulative ablations of the real render program.
+"""Where one MIS camera sample's time goes: cumulative ablations of the real render pass.
 
-    python benchmarks/profile_render.py            # ~3 min on the 2-core machine
+    python benchmarks/profile_render.py            # ~2 min on the 2-core machine
     python benchmarks/profile_render.py --trace    # also the per-kernel XLA:CPU trace
 
 Every stage is measured *inside the render*: ``jaxrt.passes.render_tiles`` (256×256
-``cornell_box``, 1 spp, the default 256-pixel tiles × 64 per ``lax.map`` step, i.e. 16 384
-lanes)
-is compiled once per level with its per-sample function replaced by a truncated MIS estimator
-that stops after one more stage (each level's output depends on everything it computed, so XLA
-cannot drop it). The cost of a stage is the difference between consecutive levels, taken per
-round (levels alternate in every round, paired) and reported as the median; the stages add up
-to the full render by construction. Levels:
+``cornell_box``, a pass of :data:`SPP` samples per pixel as ``render`` runs them, 256-pixel
+tiles × 64 per ``lax.map`` step, i.e. 16 384 lanes) is compiled once per level with the
+pass's two halves of a sample (``camera_hit``, run one sample ahead, and
+``camera_radiance``) replaced by the same functions stopped after one more stage. Each
+level's output depends on everything it computed, so XLA cannot drop it. The stages are the
+real pass's own functions (the camera hit by the eye's planes, the shadow ray against the
+occluders and blocks, the BSDF ray against emitters and occluders: ``jaxrt.terms``), and the
+last level is the real pass. The cost of a stage is the difference between consecutive
+levels in CPU-seconds, taken per round (levels alternate in every round, paired) and
+reported as the median; the stages add up to the full render by construction. Per CPU-second,
+because XLA:CPU runs independent kernels (the next sample's camera loop beside this one's
+shading) on its two threads: a level's wall time is not the sum of its stages' work.
 
-0. nothing — the same tiles, lax.map, fori_loop and running sums around a constant sample
-1. sample stream — all 8 dimensions one MIS sample draws (``jaxrt.sampler``)
-2. camera ray — ``generate_ray``
-3. closest hit — ``scene.intersect`` of the camera ray (brute force, 32 triangles), hit point
-4. light sample — ``lights.sample_li`` (spherical triangle of one of the two light triangles)
-5. shadow ray — robust ``spawn_ray_to`` + ``any_hit``
-6. BSDF eval + pdf — of the light direction (diffuse)
-7. BSDF sample — diffuse ``bsdf_sample``
-8. BSDF ray — ``spawn_ray`` + closest hit + ``emitted``
-9. pdf_li — the light pdf of the BSDF ray's hit
-10. full render — the real pass (``camera_sample``'s two halves, the camera ray's hit found
-    one sample ahead; adds emitted-by-camera-hit, the MIS weights and that overlap)
+A truncated level is a different program, and XLA:CPU may fuse it differently: on
+2026-12-05 (AMD family 25) level 3 read 0.231 CPU-µs per sample against 0.171 for the whole
+pass, because XLA fused the level's sum into the kernel that forms the camera hit's point, a
+(N, 3) output in transposed layout whose three elements each recompute its 139 operations
+(159 of the level's 328 ms of kernels; that kernel takes 14 ms in the real pass), and the
+shadow ray's stage then read −0.134. So read a stage's cost as a hint and check it against
+the kernel-scope table below, which charges the real pass's own kernels.
+Levels:
 
-It also prints what the compiled full program contains (fusions, while loops, gathers). With
-``--trace`` it records one full render with ``jax.profiler`` and lists the kernels (XLA:CPU
-thunks) that take the most time.
+0. nothing — the same tiles, lax.map, pipelined sample loop and running sums around a
+   constant sample
+1. sample stream — the dimensions one MIS sample draws (``jaxrt.sampler``)
+2. camera ray — ``terms.camera_ray``
+3. camera hit — ``estimators.camera_hit`` (closest hit by the eye's planes, found one sample
+   ahead) and the shading point (normal, local ``wo``, material)
+4. light sample — ``lights.sample_li`` with the BSDF's value and pdf in its direction
+5. shadow ray — ``terms._visible`` (robust spawn towards the light point + any hit)
+6. BSDF sample — ``terms.bsdf_direction`` (sample, weight, spawned origin)
+7. BSDF ray — ``terms.trace_from`` (closest hit against emitters and occluders, emitted
+   radiance, light pdf of the hit)
+8. full render — the real pass (adds emission seen by the camera and the MIS weights)
 
-Out of date since the eighth session: levels 3 and 8 still call the general
-``scene.intersect``, while the real pass finds camera hits by the eye's planes and the BSDF
-ray against occluders and emitters only, and the stage scopes wrap module attributes the pass
-no longer calls through; on 2026-12-05 (AMD family 25) the ladder read negative costs for
-three stages and left 80 % of the kernel time in "other". For where a pass's time goes today,
-use ``benchmarks/kernel_sources.py`` (kernel time and distinct kernels by source line).
+It also prints what the compiled full program contains (fusions, while loops, gathers), and
+the kernel time of one traced full render by the named scope of each kernel's root
+operation. With ``--trace`` it lists the kernels (XLA:CPU thunks) that take the most time.
+``benchmarks/kernel_sources.py`` charges kernel time to source lines instead.
 """
 
 from __future__ import annotations
@@ -59,88 +67,74 @@ import jaxrt.passes as ps
 import jaxrt.terms as terms_mod
 from jaxrt import lights as lt
 from jaxrt import materials as mt
-from jaxrt.camera import generate_ray
-from jaxrt.estimators import camera_sample, compiler_options, make_estimator, prepare_scene
+from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
 from jaxrt.render import render
-from jaxrt.scene import emitted, intersect, material_at, shading_normal
 from jaxrt.scenes import cornell_box
-from jaxrt.spawn import spawn_ray
-from jaxrt.vecmath import to_local, to_world
+from jaxrt.vecmath import to_local
 
 SIZE = 256
+SPP = 32  # samples per pixel of the profiled pass: render's pass for a 256² image at 64 spp
 BATCH_SIZE = inspect.signature(render).parameters["batch_size"].default  # as render
-LEVELS = ("nothing", "sample stream", "camera ray", "closest hit (camera ray)", "light sample",
-          "shadow ray (any hit)", "BSDF eval + pdf (light dir)", "BSDF sample",
-          "BSDF ray: closest hit + emitted", "pdf_li (BSDF ray)", "full render (+ MIS weights)")
+LEVELS = ("nothing", "sample stream", "camera ray", "camera hit + shading point",
+          "light sample + BSDF value, pdf", "shadow ray (any hit)", "BSDF sample",
+          "BSDF ray: closest hit + emitted + pdf_li", "full render (+ emitted, MIS weights)")
 
 
-def truncated_sample(level: int):
-    """A per-sample function with ``camera_sample``'s signature that stops after ``level``."""
+def truncated_halves(level: int):
+    """``(camera_hit, camera_radiance)`` of a sample that stops after ``level``; the real
+    pair at the last level."""
     if level == len(LEVELS) - 1:
-        return camera_sample
+        return est_mod.camera_hit, est_mod.camera_radiance
 
-    def sample(scene, est, pixel, index, seed, sampler="independent", spp=1):
-        s = terms_mod.Stream.of(sampler, seed, pixel, index, spp)
+    def first(scene, pixel, s):
+        if level >= 3:
+            return est_mod.camera_hit(scene, pixel, s)
+        return pixel, s.index  # a stub hit: the second half reads the pixel from it
+
+    def second(scene, est, hit, wo, s):
         dtype = scene.triangles.dtype
         if level == 0:
-            return jnp.broadcast_to(pixel.astype(dtype) * 1e-9, (3,))
-        u_cam, u_light, u_sel, u_bsdf = s.u2(0), s.u2(2), s.u1(4), s.u2(6)
-        acc = jnp.concatenate([u_cam, u_light[:1]]) + jnp.concatenate([u_sel[None], u_bsdf])
+            return jnp.broadcast_to(wo.astype(dtype) * 1e-9, (3,))
+        # the dimensions the real MIS sample draws (1 light + 1 BSDF sample)
+        u_light, u_sel, u_bsdf = s.u2(2), s.u1(4), s.u2(6)
+        acc = jnp.concatenate([u_light, u_sel[None]]) + jnp.concatenate([u_bsdf, u_sel[None]])
         if level == 1:
-            return acc
-        xy = jnp.stack([pixel % scene.width, pixel // scene.width]).astype(jnp.int32)
-        o, d = generate_ray(scene.camera, xy, u_cam)
-        acc = acc + d
+            return acc + s.u2(0)[0]
         if level == 2:
-            return acc
-        hit = intersect(scene, o, d, jnp.asarray(jnp.inf, dtype))
-        n = shading_normal(hit.ng, -d)
-        x = terms_mod.ShadingPoint(hit, n, to_local(-d, n), material_at(scene, hit))
-        acc = acc + hit.p + n + x.material.kd
+            return acc + terms_mod.camera_ray(scene, hit, s)[1]
+        x = terms_mod.shading_point(scene, hit, wo)
+        acc = acc + x.hit.p + x.n + x.wo_local + x.material.kd
         if level == 3:
             return acc
-        ls = lt.sample_li(scene.lights, hit.p, n, jnp.concatenate([u_sel[None], u_light]))
-        acc = acc + ls.wi * ls.pdf + ls.li + ls.dist
+        ls = lt.sample_li(scene.lights, x.hit.p, x.n, jnp.concatenate([u_sel[None], u_light]))
+        wi_local = to_local(ls.wi, x.n)
+        f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
+        pdf = mt.bsdf_pdf(x.material, x.wo_local, wi_local, scene.material_kinds)
+        acc = acc + f * ls.li * jnp.abs(wi_local[2]) / ls.pdf + pdf
         if level == 4:
             return acc
         acc = acc + terms_mod._visible(scene, x, ls)
         if level == 5:
             return acc
-        wi_local = to_local(ls.wi, n)
-        f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
-        acc = acc + f + mt.bsdf_pdf(x.material, x.wo_local, wi_local, scene.material_kinds)
+        b = terms_mod.bsdf_direction(scene, x, u_bsdf)
+        acc = acc + b.weight + b.o + b.wi * b.pdf
         if level == 6:
             return acc
-        bs = mt.bsdf_sample(x.material, x.wo_local, u_bsdf, scene.material_kinds)
-        wi = to_world(bs.wi, n)
-        acc = acc + wi * bs.pdf + bs.weight
-        if level == 7:
-            return acc
-        o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
-        h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype), emission_only=True)
-        acc = acc + emitted(scene, h, -d) + h.p
-        if level == 8:
-            return acc
-        return acc + lt.pdf_li(scene.lights, hit.p, wi, h.light, h.p)
+        a = terms_mod.trace_from(scene, x.hit.p, b.o, b.wi, emission_only=True)
+        return acc + a.le + a.pdf_light
 
-    return sample
+    return first, second
 
 
 def compile_level(scene, est, level: int):
-    """The render program of one pass of 1 spp with ``camera_sample`` truncated at ``level``."""
-    jax.clear_caches()  # the per-sample function is looked up at trace time
+    """The render program of one pass of :data:`SPP` samples with the sample truncated at
+    ``level``: (executable, arguments, compile seconds)."""
+    jax.clear_caches()  # the two halves are looked up at trace time
     original = ps.camera_hit, ps.camera_radiance
-    if level < len(LEVELS) - 1:
-        # the pass runs camera_sample as its two halves, one sample apart (passes.lane_sums);
-        # a truncated level runs whole in the second half, the first half returns a stub
-        sample = truncated_sample(level)
-        ps.camera_hit = lambda scene, pixel, s: (pixel, s.index)
-        # (the stub's hit is the pixel; the pass's seed is 0, below)
-        ps.camera_radiance = lambda scene, est, hit, wo, s: sample(
-            scene, est, hit, s.index, jnp.uint32(0), s.kind, s.spp)
+    ps.camera_hit, ps.camera_radiance = truncated_halves(level)
     try:
-        static = dict(est=est, sampler="independent", spp_total=1, count=1, tile_size=256,
-                      batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
+        static = dict(est=est, sampler="independent", spp_total=SPP, count=SPP,
+                      tile_size=256, batch_size=BATCH_SIZE, num_tiles=SIZE * SIZE // 256)
         per_step, steps = ps.step_layout(SIZE * SIZE // 256, BATCH_SIZE)
         sums = ps.zero_sums((steps * per_step * 256,), scene.triangles.dtype)
         args = (scene, jnp.uint32(0), jnp.int32(0), jnp.int32(0), sums)
@@ -270,8 +264,8 @@ def main() -> None:
     est = make_estimator("mis")
     scene = cornell_box(SIZE, SIZE)
     scene = prepare_scene(scene, est)
-    n = SIZE * SIZE
-    print(f"jax {jax.__version__}, {SIZE}x{SIZE} cornell_box, mis, 1 spp, "
+    n = SIZE * SIZE * SPP
+    print(f"jax {jax.__version__}, {SIZE}x{SIZE} cornell_box, mis, a pass of {SPP} spp, "
           f"{256 * BATCH_SIZE} lanes per step; "
           f"load average at start {os.getloadavg()}")
     programs = []
@@ -280,26 +274,34 @@ def main() -> None:
         jax.block_until_ready(exe(*args))  # warm-up
         programs.append((exe, args))
         print(f"  compiled level {level:2d} {name!r} in {tc:.1f} s", flush=True)
-    times = np.zeros((a.rounds, len(LEVELS)))
+    # CPU time as well as wall: XLA:CPU runs independent kernels (the next sample's camera
+    # loop beside this one's shading) on its two threads, so a level's wall time is not the
+    # sum of its stages' work, and a stage that adds parallel work can shorten it
+    wall = np.zeros((a.rounds, len(LEVELS)))
+    cpu = np.zeros((a.rounds, len(LEVELS)))
     for r in range(a.rounds):
-        for k, (exe, args) in enumerate(programs):
-            t0 = time.perf_counter()
+        order = range(len(LEVELS)) if r % 2 == 0 else reversed(range(len(LEVELS)))
+        for k in order:
+            exe, args = programs[k]
+            w0, c0 = time.perf_counter(), time.process_time()
             jax.block_until_ready(exe(*args))
-            times[r, k] = (time.perf_counter() - t0) / n * 1e6
-    whole = np.median(times[:, -1])
+            wall[r, k] = (time.perf_counter() - w0) / n * 1e6
+            cpu[r, k] = (time.process_time() - c0) / n * 1e6
+    whole = np.median(cpu[:, -1])
     print(f"\nload average at end {os.getloadavg()}; {a.rounds} rounds, levels alternating\n")
-    print("| stage | µs per sample | share | level total µs |")
-    print("|---|---:|---:|---:|")
+    print("| stage | CPU µs per sample | share | level total, CPU µs | level total, wall µs |")
+    print("|---|---:|---:|---:|---:|")
     for k, name in enumerate(LEVELS):
-        step = times[:, k] - (times[:, k - 1] if k else 0)
+        step = cpu[:, k] - (cpu[:, k - 1] if k else 0)
         print(f"| {name} | {np.median(step):.3f} | {np.median(step) / whole:.0%} "
-              f"| {np.median(times[:, k]):.3f} |")
-    print(f"\nfull render: {whole:.3f} µs per sample = {1 / whole:.3f} Msamples/s")
+              f"| {np.median(cpu[:, k]):.3f} | {np.median(wall[:, k]):.3f} |")
+    print(f"\nfull render: {whole:.3f} CPU-µs per sample = {1 / whole:.3f} Msamples per "
+          f"CPU-second, {1 / np.median(wall[:, -1]):.3f} per wall second")
     full_exe, full_args = programs[-1]
     print("full program:", hlo_stats(full_exe.as_text()))
     ms, total = scoped_profile(scene, est)
     print(f"\nKernel time of one traced full render by stage ({total:.0f} ms of kernels; "
-          "µs scaled to the paired full-render median)\n")
+          "CPU-µs scaled to the paired full-render median)\n")
     print("| stage (scope of the kernel's root op) | µs per sample | share |\n|---|---:|---:|")
     for label, v in sorted(ms.items(), key=lambda kv: -kv[1]):
         print(f"| {label} | {v / total * whole:.3f} | {v / total:.0%} |")
