@@ -15,7 +15,7 @@ import numpy as np
 
 from jaxrt import warp as W
 from jaxrt.chi2_domains import SQUARE, Domain, resolve_domain
-from jaxrt.io import _atomic_write
+from jaxrt.io import write_atomically
 from jaxrt.testing import chi2_test
 
 # parameter index shown per warp (peaked lobes need finer grids than a gallery row)
@@ -106,7 +106,7 @@ def make_gallery(path, num_samples: int = 100_000, resolution=(32, 16), seed: in
     bar.close()
     fig.tight_layout()
     # to a temporary file renamed over ``path``: an interrupted run leaves no half a picture
-    _atomic_write(path, lambda f: fig.savefig(f, format="png", dpi=70))
+    write_atomically(path, lambda f: fig.savefig(f, format="png", dpi=70))
     plt.close(fig)
     return results
 

@@ -281,13 +281,13 @@ def test_png_failure_mid_write_leaves_target_intact(tmp_path, monkeypatch):
     first = io.write_png(path, _image())
     before = path.read_bytes()
 
-    real_atomic = io._atomic_write
+    real_atomic = io.write_atomically
 
     def failing_atomic(p, write):
         # the real machinery, with a writer that dies half-way through the bytes
         real_atomic(p, lambda f: (write(f), _boom_after_partial_write(f)))
 
-    monkeypatch.setattr(io, "_atomic_write", failing_atomic)
+    monkeypatch.setattr(io, "write_atomically", failing_atomic)
     with pytest.raises(OSError, match="simulated"):
         io.write_png(path, _image(seed=9))
     assert path.read_bytes() == before  # old file intact
@@ -333,17 +333,17 @@ def test_interrupt_mid_write_cleans_up(tmp_path):
         raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        io._atomic_write(tmp_path / "x.bin", interrupted)
+        io.write_atomically(tmp_path / "x.bin", interrupted)
     assert _listing(tmp_path) == []
 
 
 def test_atomic_write_replaces_and_keeps_mode(tmp_path):
     path = tmp_path / "x.bin"
-    io._atomic_write(path, lambda f: f.write(b"one"))
+    io.write_atomically(path, lambda f: f.write(b"one"))
     # a new file is not left with mkstemp's private 0600 mode
     assert os.stat(path).st_mode & 0o777 == 0o644
     os.chmod(path, 0o640)
-    io._atomic_write(path, lambda f: f.write(b"two"))
+    io.write_atomically(path, lambda f: f.write(b"two"))
     assert path.read_bytes() == b"two" and os.stat(path).st_mode & 0o777 == 0o640
 
 
