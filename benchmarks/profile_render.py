@@ -99,7 +99,7 @@ def truncated_halves(level: int):
         u_light, u_sel, u_bsdf = s.u2(2), s.u1(4), s.u2(6)
         acc = jnp.concatenate([u_light, u_sel[None]]) + jnp.concatenate([u_bsdf, u_sel[None]])
         if level == 1:
-            return acc + s.u2(0)[0]
+            return acc + jnp.sum(s.u2(0))  # the camera ray's two dimensions as well
         if level == 2:
             return acc + terms_mod.camera_ray(scene, hit, s)[1]
         x = terms_mod.shading_point(scene, hit, wo)
