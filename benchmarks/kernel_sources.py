@@ -1,6 +1,7 @@
 """Where a render pass's kernel time goes, by source line, and which costly values XLA recomputes.
 
     python benchmarks/kernel_sources.py [--estimator path] [--spp 8] [--top 25]
+    python benchmarks/kernel_sources.py --estimator mis --spp 32 --compile   # compile, by line
 
 Compiles the real render pass (:class:`jaxrt.passes.RenderPass`, 256² Cornell box, the
 independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
@@ -18,6 +19,11 @@ line of the sampler's hash serves every random dimension, so its count is mostly
 values.
 
 This is how the ``computed_once`` change was found (benchmarks/README.md, "fifth session").
+
+``--compile`` charges the *compile* instead: the pass is compiled in a fresh process with
+XLA's log on (``TF_CPP_VMODULE``), and the MLIR and LLVM seconds XLA reports for each kernel
+module go to the source line of the kernel's root operation, summed by file and by line
+(benchmarks/README.md, "twenty-fifth session").
 """
 
 from __future__ import annotations
@@ -26,6 +32,9 @@ import argparse
 import collections
 import os
 import re
+import subprocess
+import sys
+import tempfile
 
 import jax
 from profile_render import _trace_events  # this directory's profiler: one traced run
@@ -70,18 +79,74 @@ def kernel_times(exe, args) -> dict[str, float]:
     return ms
 
 
+def module_seconds(log: str) -> dict[str, float]:
+    """CPU seconds XLA:CPU's log reports per kernel module (MLIR and LLVM together), by the
+    name of the fusion the module compiles."""
+    unit = {"s": 1.0, "ms": 1e-3, "us": 1e-6}
+    out = collections.defaultdict(float)
+    for name, v, u in re.findall(r"Compiled (?:MLIR|LLVM) module: (?:__compute_module_)*(\S+?)"
+                                 r"(?:_kernel_module)? time: ([0-9.]+) (s|ms|us)", log):
+        out[name] += float(v) * unit[u]
+    return out
+
+
+def compile_by_line(a) -> None:
+    """Print the pass's compile seconds by source file and line (``--compile``)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        hlo = os.path.join(tmp, "pass.hlo")
+        env = dict(os.environ, TF_CPP_MIN_LOG_LEVEL="0", JAX_ENABLE_COMPILATION_CACHE="false",
+                   TF_CPP_VMODULE="fusion_compiler=1,ir_compiler=1,cpu_compiler=1")
+        out = subprocess.run([sys.executable, __file__, "--estimator", a.estimator, "--spp",
+                              str(a.spp), "--write-hlo", hlo], env=env, text=True,
+                             capture_output=True, check=True)
+        text = open(hlo).read()
+    seconds = module_seconds(out.stderr)
+    hlo_passes = re.findall(r"Running HLO passes on \[jit_render_tiles\] for CPU time: "
+                            r"([0-9.]+) (s|ms|us)", out.stderr)
+    where, bodies = source_lines(text)
+
+    def line_of(kernel: str) -> str:
+        root = re.search(r"ROOT %(\S+) =", bodies[kernel]) if kernel in bodies else None
+        return where.get(root.group(1), where.get(kernel, "?")) if root else where.get(kernel, "?")
+
+    by_line, by_file, count = collections.Counter(), collections.Counter(), collections.Counter()
+    for kernel, t in seconds.items():
+        line = line_of(kernel)
+        by_line[line] += t
+        by_file[line.split(":")[0]] += t
+        count[line] += 1
+    total = sum(seconds.values())
+    passes = f"{float(hlo_passes[-1][0]):.2f} {hlo_passes[-1][1]}" if hlo_passes else "?"
+    print(f"{a.estimator}, 256², {a.spp} spp: HLO passes {passes} (one thread), then "
+          f"{len(seconds)} kernel modules, {total:.2f} CPU-s of MLIR and LLVM; by file:")
+    for name, t in by_file.most_common():
+        print(f"  {t:7.3f} s {100 * t / total:5.1f} %  {name}")
+    print("by source line (CPU-s, modules):")
+    for line, t in by_line.most_common(a.top):
+        print(f"  {t:7.3f} s {count[line]:4d}  {line}")
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--estimator", default="path")
     parser.add_argument("--spp", type=int, default=8)
     parser.add_argument("--top", type=int, default=25)
+    parser.add_argument("--compile", action="store_true",
+                        help="charge the compile, not the run, to source lines")
+    parser.add_argument("--write-hlo", default=None, help=argparse.SUPPRESS)
     a = parser.parse_args(argv)
+    if a.compile:
+        return compile_by_line(a)
     est = make_estimator(a.estimator)
     scene = prepare_scene(cornell_box(256, 256), est)
     run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
                      spp_total=a.spp, batch_size=64)
     run.compile(a.spp)
     text = run.compiled[a.spp].as_text()
+    if a.write_hlo:  # the child of --compile: the optimised program, for its parent
+        with open(a.write_hlo, "w") as f:
+            f.write(text)
+        return None
     where, bodies = source_lines(text)
     sums = jax.block_until_ready(run(run.zeros(), 0, a.spp))  # warm-up
     ms = kernel_times(lambda s: run(s, a.spp, a.spp), (sums,))

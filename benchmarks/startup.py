@@ -2,6 +2,7 @@
 
     python benchmarks/startup.py                    # all three, ~2 min on the 2-core machine
     python benchmarks/startup.py --only compile     # per-estimator compile times only
+    python benchmarks/startup.py --only phases      # where a first frame's seconds go
 
 Every figure comes from a fresh interpreter (``subprocess``), as a user meets it:
 
@@ -12,7 +13,11 @@ Every figure comes from a fresh interpreter (``subprocess``), as a user meets it
   compile seconds it prints (the second reads its pass from jaxrt's program cache);
 - **compile per estimator**: trace, lower and XLA compile of the 256² pass (32 spp per pass,
   as ``render`` picks for 64 spp), each estimator in its own process, wall and CPU seconds;
-  and the same pass read from :mod:`jaxrt.program_cache` by a second process.
+  and the same pass read from :mod:`jaxrt.program_cache` by a second process;
+- **phases** of the first frame, in a fresh process that runs what ``render`` runs step by
+  step: imports, scene, trace, lower, XLA (split by XLA's own log into its HLO passes, on one
+  thread, and its kernel modules, compiled on its worker threads: their count and summed
+  MLIR and LLVM CPU seconds), then the two 32-spp passes; wall and CPU seconds of each.
 
 The machine is shared: each figure is the median of ``--repeat`` runs, printed with the load
 average (``os.getloadavg``) before and after and the share of CPU time the host stole
@@ -77,6 +82,38 @@ _NEUTRAL = tempfile.gettempdir()
 #: The tree whose ``jaxrt`` package is measured (``--jaxrt``: e.g. an older checkout, to
 #: compare before and after in the same period of machine load).
 TREE = ROOT
+
+
+PHASES = """
+import time
+clock = lambda: (time.perf_counter(), time.process_time())
+t = [clock()]
+import jax
+t.append(clock())
+from jaxrt import scenes
+import jaxrt.passes as ps
+from jaxrt.estimators import compiler_options_soon, make_estimator, prepare_scene
+t.append(clock())
+est = make_estimator("mis")
+options = compiler_options_soon()
+scene = prepare_scene(scenes.cornell_box(256, 256), est)
+run = ps.RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
+                    spp_total=64, batch_size=64)
+args = (run.scene, run.seed, run._start(0), run.firsts, run.zeros())
+t.append(clock())
+traced = ps.render_tiles.trace(*args, count=32, **run.static)
+t.append(clock())
+lowered = traced.lower()
+t.append(clock())
+exe = lowered.compile(options.result())
+t.append(clock())
+sums = jax.block_until_ready(exe(*args))
+sums = jax.block_until_ready(exe(run.scene, run.seed, run._start(32), run.firsts, sums))
+t.append(clock())
+print(" ".join(f"{b[0] - a[0]:.4f} {b[1] - a[1]:.4f}" for a, b in zip(t, t[1:])))
+"""
+#: the phases PHASES times, in order
+PHASE_NAMES = ("import jax", "import jaxrt", "scene", "trace", "lower", "XLA", "two passes")
 
 
 CACHED = """
@@ -168,6 +205,42 @@ def first_frame(repeat: int = 3) -> dict:
             "first_frame_cpu_s": statistics.median(r[2] for r in runs), "runs": runs}
 
 
+def _xla_log(log: str) -> dict:
+    """XLA's own account of the pass's compile, from its log (``TF_CPP_VMODULE``): seconds of
+    HLO passes, and the kernel modules compiled with their summed MLIR and LLVM seconds."""
+    seconds = lambda v, unit: float(v) * {"s": 1.0, "ms": 1e-3, "us": 1e-6}[unit]
+    hlo = [seconds(*m) for m in re.findall(
+        r"Running HLO passes on \[jit_render_tiles\] for CPU time: ([0-9.]+) (s|ms|us)", log)]
+    mlir = [seconds(*m) for m in re.findall(
+        r"Compiled MLIR module: \S+ time: ([0-9.]+) (s|ms|us)", log)]
+    llvm = [seconds(*m) for m in re.findall(
+        r"Compiled LLVM module: \S+ time: ([0-9.]+) (s|ms|us)", log)]
+    return {"hlo_passes": hlo[-1] if hlo else float("nan"), "modules": len(mlir),
+            "mlir_cpu": sum(mlir), "llvm_cpu": sum(llvm)}
+
+
+def phases(repeat: int = 3) -> dict:
+    """{phase: (wall, CPU) seconds} of a first frame, medians over ``repeat`` fresh processes
+    (:data:`PHASE_NAMES`), and XLA's split of its compile (:func:`_xla_log`)."""
+    runs, logs = [], []
+    for _ in range(repeat):
+        out = subprocess.run([sys.executable, "-c", PHASES], capture_output=True,
+                             cwd=_NEUTRAL, text=True, check=True, timeout=600,
+                             env=_env(JAX_ENABLE_COMPILATION_CACHE="false",
+                                      TF_CPP_MIN_LOG_LEVEL="0",
+                                      TF_CPP_VMODULE="cpu_compiler=1,fusion_compiler=1,"
+                                                     "ir_compiler=1"))
+        runs.append([float(x) for x in out.stdout.split()[-2 * len(PHASE_NAMES):]])
+        logs.append(_xla_log(out.stderr))
+    res = {name: (statistics.median(r[2 * i] for r in runs),
+                  statistics.median(r[2 * i + 1] for r in runs))
+           for i, name in enumerate(PHASE_NAMES)}
+    res["total"] = (statistics.median(sum(r[0::2]) for r in runs),
+                    statistics.median(sum(r[1::2]) for r in runs))
+    res["xla_log"] = {k: statistics.median(g[k] for g in logs) for k in logs[0]}
+    return res
+
+
 def second_run(repeat: int = 3) -> dict:
     """Wall seconds of a second ``jaxrt render`` (16², 16 spp) and the compile it reports."""
     import time
@@ -231,7 +304,7 @@ def compile_times(repeat: int = 1, estimators=ESTIMATORS) -> dict:
 
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    p.add_argument("--only", choices=("first", "second", "compile"), default=None)
+    p.add_argument("--only", choices=("first", "second", "compile", "phases"), default=None)
     p.add_argument("--repeat", type=int, default=3)
     p.add_argument("--json", default=None, help="also write the figures here")
     p.add_argument("--jaxrt", default=None, metavar="DIR",
@@ -248,6 +321,16 @@ def main(argv=None) -> dict:
               f"{out['first']['first_frame_compile_s']:.2f} s, CPU "
               f"{out['first']['first_frame_cpu_s']:.2f} s), runs {out['first']['runs']}; "
               f"{_load()}", flush=True)
+    if a.only in (None, "phases"):
+        out["phases"] = ph = phases(a.repeat)
+        print(f"first frame by phase (MIS, 256², 64 spp; medians of {a.repeat} fresh processes, "
+              f"wall / CPU s):", flush=True)
+        for name in PHASE_NAMES + ("total",):
+            print(f"  {name:12s} {ph[name][0]:6.2f} {ph[name][1]:6.2f}")
+        g = ph["xla_log"]
+        print(f"  XLA's log: HLO passes {g['hlo_passes']:.2f} s (one thread), then "
+              f"{g['modules']:.0f} kernel modules, MLIR {g['mlir_cpu']:.2f} + LLVM "
+              f"{g['llvm_cpu']:.2f} CPU-s; {_load()}", flush=True)
     if a.only in (None, "second"):
         out["second"] = second_run(a.repeat)
         s = out["second"]

@@ -1,6 +1,6 @@
-"""Start-up: first frame, second ``jaxrt render`` run, compile time per estimator.
+"""Start-up: first frame (and its phases), second ``jaxrt render`` run, compile per estimator.
 
-    pytest benchmarks/test_bench_startup.py --benchmark-enable -s     # ~3-5 min on 2 cores
+    pytest benchmarks/test_bench_startup.py --benchmark-enable -s     # ~4-6 min on 2 cores
 
 Each figure comes from fresh interpreters (``benchmarks/startup.py``, which also runs
 standalone); ``extra_info`` holds the medians and every run, with the load average. Without
@@ -41,6 +41,19 @@ def test_bench_first_frame(benchmark):
     print(f"\n  first frame {info['first_frame_s']:.2f} s (compile "
           f"{info['first_frame_compile_s']:.2f} s, CPU {info['first_frame_cpu_s']:.2f} s), "
           f"load {info['load'][0]:.2f}")
+
+
+def test_bench_first_frame_phases(benchmark):
+    if benchmark.disabled:
+        pytest.skip("timed only with --benchmark-enable (a 64-spp 256² render per run)")
+    info = _record(benchmark, startup.phases, repeat=REPEAT)
+    for name in startup.PHASE_NAMES:
+        print(f"\n  {name:12s} {info[name][0]:6.2f} s wall {info[name][1]:6.2f} CPU-s", end="")
+    g = info["xla_log"]
+    print(f"\n  XLA: HLO passes {g['hlo_passes']:.2f} s, {g['modules']:.0f} kernel modules "
+          f"(MLIR {g['mlir_cpu']:.2f} + LLVM {g['llvm_cpu']:.2f} CPU-s)")
+    # XLA's log was read (its format is XLA's, not ours): the split is there and inside XLA's time
+    assert g["modules"] > 0 and 0 < g["hlo_passes"] < info["XLA"][0]
 
 
 def test_bench_second_run(benchmark):
