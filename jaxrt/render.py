@@ -164,7 +164,9 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
         on_pass: called with the samples per pixel done after each pass.
 
     Returns a :class:`RenderResult`. Raises :class:`RenderInterrupted` (a KeyboardInterrupt
-    carrying the partial result) on Ctrl-C.
+    carrying the partial result) on Ctrl-C, after the pass running; a second Ctrl-C raises a
+    plain KeyboardInterrupt (at once, or after that pass if Python lost it in a
+    garbage-collector callback).
     """
     est = make_estimator(estimator, **estimator_params)
     adaptive = time_budget is not None or target_error is not None
@@ -222,7 +224,7 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
     done, passes, stopped_by, bar_done = 0, 0, None, 0
     t_start = time.perf_counter()
     last_pass = 0.0
-    with _sigint_flag(stop) as interrupted:
+    with _sigint_flag(stop) as (interrupted, repeated):
         # with several processes only the agreed decision ends the loop: a process that left
         # on its own flag (set between passes) would wait in the final gather while the others
         # wait for it in the next pass's agreement (a deadlock; tests/test_multiprocess.py)
@@ -232,6 +234,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
             t_pass = time.perf_counter()
             # a shorter last pass compiles its own program (count is static)
             sums = run(sums, done, count)
+            if repeated.is_set():  # a second Ctrl-C whose KeyboardInterrupt was lost
+                raise KeyboardInterrupt
             done += count
             passes += 1
             if on_pass is not None:
@@ -341,21 +345,27 @@ def _error_for_stopping(s1: np.ndarray, s2: np.ndarray, n: int) -> float:
 @contextmanager
 def _sigint_flag(flag: threading.Event | None = None):
     """Turn the first Ctrl-C into a flag the pass loop checks (a second one interrupts at
-    once). Only in the main thread, where Python delivers signals; elsewhere only ``flag``."""
+    once). Yields ``(flag, repeated)``; ``repeated`` is set by the second Ctrl-C, whose
+    KeyboardInterrupt is lost when it is raised inside a garbage-collector callback (jaxlib
+    registers one: Python prints it as "ignored"), so the pass loop raises it again after the
+    pass running. Only in the main thread, where Python delivers signals; elsewhere only
+    ``flag``."""
     flag = threading.Event() if flag is None else flag
+    repeated = threading.Event()
     if threading.current_thread() is not threading.main_thread():
-        yield flag
+        yield flag, repeated
         return
     previous = signal.getsignal(signal.SIGINT)
 
     def handler(signum, frame):
         if flag.is_set():
+            repeated.set()
             raise KeyboardInterrupt
         flag.set()
 
     signal.signal(signal.SIGINT, handler)
     try:
-        yield flag
+        yield flag, repeated
     finally:
         signal.signal(signal.SIGINT, previous)
 

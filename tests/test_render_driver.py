@@ -179,6 +179,31 @@ def test_ctrl_c_stops_after_the_pass_and_returns_the_partial_image(fake):
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_a_second_ctrl_c_whose_interrupt_is_lost_still_stops_the_render(fake):
+    """Two Ctrl-C during the 3rd pass, the second's KeyboardInterrupt raised where Python
+    loses it (inside a garbage-collector callback, as jaxlib's: here a caller that swallows
+    it): the render still ends after that pass with a plain KeyboardInterrupt, as if it had
+    landed, not with the partial image that one Ctrl-C asks for."""
+    def twice(k):
+        if k == 3:
+            handler = signal.getsignal(signal.SIGINT)
+            handler(signal.SIGINT, None)
+            try:
+                handler(signal.SIGINT, None)
+            except KeyboardInterrupt:
+                pass  # lost, as in a gc callback
+
+    FakePass.on_call = twice
+    try:
+        with pytest.raises(KeyboardInterrupt) as info:
+            RENDER.render(fake, "mis", spp=4096, spp_per_pass=4, progress=False)
+    finally:
+        FakePass.on_call = None
+    assert not isinstance(info.value, RENDER.RenderInterrupted)
+    assert len(FakePass.calls) == 3  # no pass after the one running
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
 def test_progress_says_what_compiles_and_shows_rate_and_eta(fake, capsys):
     RENDER.render(fake, "mis", spp=64, spp_per_pass=16, progress=True)
     err = capsys.readouterr().err
