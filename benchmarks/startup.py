@@ -1,6 +1,6 @@
-"""Start-up of a render: first frame, the second ``jaxrt`` run, compile time per estimator.
+"""Start-up of a render: first frame and its phases, a second ``jaxrt`` run, compile per estimator.
 
-    python benchmarks/startup.py                    # all three, ~2 min on the 2-core machine
+    python benchmarks/startup.py                    # all four, ~2.5 min on the 2-core machine
     python benchmarks/startup.py --only compile     # per-estimator compile times only
     python benchmarks/startup.py --only phases      # where a first frame's seconds go
 
