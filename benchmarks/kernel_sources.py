@@ -99,7 +99,8 @@ def compile_by_line(a) -> None:
         out = subprocess.run([sys.executable, __file__, "--estimator", a.estimator, "--spp",
                               str(a.spp), "--write-hlo", hlo], env=env, text=True,
                              capture_output=True, check=True)
-        text = open(hlo).read()
+        with open(hlo) as f:
+            text = f.read()
     seconds = module_seconds(out.stderr)
     hlo_passes = re.findall(r"Running HLO passes on \[jit_render_tiles\] for CPU time: "
                             r"([0-9.]+) (s|ms|us)", out.stderr)

@@ -3,6 +3,7 @@
     python benchmarks/startup.py                    # all four, ~2.5 min on the 2-core machine
     python benchmarks/startup.py --only compile     # per-estimator compile times only
     python benchmarks/startup.py --only phases      # where a first frame's seconds go
+    python benchmarks/startup.py --only first --accel bvh   # the box's first frame by a BVH
 
 Every figure comes from a fresh interpreter (``subprocess``), as a user meets it:
 
@@ -43,11 +44,12 @@ ESTIMATORS = ("mis", "mis_one_sample", "light_solid_angle", "light_area", "bsdf"
               "cosine_hemisphere", "uniform_hemisphere")
 
 FIRST_FRAME = """
-import time
+import sys, time
 t0 = time.perf_counter()
 from jaxrt import scenes
 from jaxrt.render import render
-r = render(scenes.cornell_box(256, 256), "mis", spp=64, seed=0, progress=False)
+r = render(scenes.cornell_box(256, 256, accel=sys.argv[1]), "mis", spp=64, seed=0,
+           progress=False)
 r.image.sum()
 print(time.perf_counter() - t0, r.timings["compile"])
 """
@@ -188,13 +190,14 @@ def _child_cpu() -> float:
     return r.ru_utime + r.ru_stime
 
 
-def first_frame(repeat: int = 3) -> dict:
+def first_frame(repeat: int = 3, accel: str = "auto") -> dict:
     """Seconds from a fresh interpreter to a 64-spp 256² MIS image, and the compile in it
-    (and the process's CPU seconds)."""
+    (and the process's CPU seconds); ``accel`` as ``build_scene`` takes it ("bvh": the
+    same box traversed by a BVH)."""
     runs = []
     for _ in range(repeat):
         cpu = _child_cpu()
-        out = subprocess.run([sys.executable, "-c", FIRST_FRAME], capture_output=True,
+        out = subprocess.run([sys.executable, "-c", FIRST_FRAME, accel], capture_output=True,
                              cwd=_NEUTRAL,
                              text=True, check=True, timeout=600,
                              env=_env(JAX_ENABLE_COMPILATION_CACHE="false",
@@ -306,6 +309,8 @@ def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--only", choices=("first", "second", "compile", "phases"), default=None)
     p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--accel", choices=("auto", "brute", "bvh"), default="auto",
+                   help="the first frame's intersection (bvh: the same box by a BVH)")
     p.add_argument("--json", default=None, help="also write the figures here")
     p.add_argument("--jaxrt", default=None, metavar="DIR",
                    help="measure the jaxrt package in DIR (default: this checkout)")
@@ -316,8 +321,9 @@ def main(argv=None) -> dict:
     print(_python_speed(), flush=True)
     if a.only in (None, "first"):
         print(_load(), flush=True)
-        out["first"] = first_frame(a.repeat)
-        print(f"first frame: {out['first']['first_frame_s']:.2f} s (compile "
+        out["first"] = first_frame(a.repeat, a.accel)
+        what = "" if a.accel == "auto" else f" (accel {a.accel})"
+        print(f"first frame{what}: {out['first']['first_frame_s']:.2f} s (compile "
               f"{out['first']['first_frame_compile_s']:.2f} s, CPU "
               f"{out['first']['first_frame_cpu_s']:.2f} s), runs {out['first']['runs']}; "
               f"{_load()}", flush=True)
