@@ -300,3 +300,44 @@ def test_bench_point_light_vs_area_light(benchmark):
           f"{info['samples_per_s_b'] / 1e6:.3f} Msamples/s: ×{info['ratio_a_over_b']:.2f}")
     assert ia.max() > 0, "the point-light box rendered black"
 
+
+
+@pytest.mark.parametrize("estimator", ["mis", "light_area", "bsdf"])
+def test_bench_one_sample_pass(benchmark, estimator):
+    """Per-sample time of a 1-spp pass against a 4-spp pass (256² Cornell box, the real pass,
+    alternating rounds). ``render`` runs 1 spp per pass from ~1.5 megapixels on
+    (``default_spp_per_pass``): there XLA inlines the sample loop, and before the twenty-fifth
+    session the MIS value was fused into each of the fold's kernels and computed in each, 3-5x
+    the per-sample time of a longer pass (a 1920x1080 MIS render ran at 1.5 Msamples/s where
+    it now runs at 6.4-6.8). Fails above 2x (a pass of one sample also pays the prologue's
+    camera hit and the step's slices of the sums once per sample)."""
+    from jaxrt.estimators import make_estimator, prepare_scene
+    from jaxrt.passes import RenderPass
+
+    est = make_estimator(estimator)
+    scene = prepare_scene(cornell.cornell_box(256, 256), est)
+    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
+                     spp_total=64, batch_size=64)
+    for count in (1, 4):
+        run.compile(count)
+    sums, times = run.zeros(), {1: [], 4: []}
+    rounds = 8 if not benchmark.disabled else 1
+
+    def go():
+        nonlocal sums
+        import time
+
+        for r in range(rounds):
+            for count in (1, 4) if r % 2 == 0 else (4, 1):
+                t0 = time.process_time()
+                sums = run(sums, 0, count)
+                times[count].append((time.process_time() - t0) / count)
+
+    benchmark.pedantic(go, rounds=1, iterations=1)
+    ratio = _median(times[1]) / _median(times[4])
+    benchmark.extra_info.update({"per_sample_cpu_s_1": _median(times[1]),
+                                 "per_sample_cpu_s_4": _median(times[4]), "ratio": ratio})
+    print(f"\n  {estimator}: 1-spp pass {_median(times[1]) * 1e3:.1f} CPU-ms per sample, "
+          f"4-spp {_median(times[4]) * 1e3:.1f}: {ratio:.2f}x")
+    if not benchmark.disabled:
+        assert ratio < 2.0
