@@ -148,10 +148,11 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     if count == 1:
         # XLA inlines a loop of one iteration, and the sample, no longer a loop carry, would
         # be fused into each of the fold's kernels and computed in each (the hazard the fold's
-        # lag avoids): stored instead. A 1-spp 256² pass, the sums bit-identical: mis 44.4 ->
-        # 9.1 ms, mis_one_sample 48 -> 9, uniform_hemisphere 42 -> 19, light_area 7.0 -> 5.4;
-        # bsdf, cosine_hemisphere and light_solid_angle 0.71-1.0x (benchmarks/README.md,
-        # "twenty-fifth session"). Passes of 1 spp are render's default from ~1.5 megapixels
+        # lag avoids): stored instead. A 1-spp 256² pass, the sums bit-identical, wall / CPU
+        # ms: mis 44.4 / 49.8 -> 9.1 / 15.9, uniform_hemisphere 42.2 / 57.0 -> 18.9 / 34.3,
+        # light_area 7.0 / 10.2 -> 5.4 / 9.0; bsdf, cosine_hemisphere and light_solid_angle
+        # 0.83-0.96x per CPU-s (benchmarks/README.md, "twenty-fifth session"). Passes of 1
+        # spp are render's default from ~1.5 megapixels
         last = tuple(computed_once(x) for x in last)
     return _fold(acc, last)
 
