@@ -304,7 +304,7 @@ def test_bench_point_light_vs_area_light(benchmark):
 @pytest.mark.parametrize("estimator", ["mis", "light_area", "bsdf"])
 def test_bench_one_sample_pass(benchmark, estimator):
     """Per-sample time of a 1-spp pass against a 4-spp pass (256² Cornell box, the real pass,
-    alternating rounds). ``render`` runs 1 spp per pass from ~1.5 megapixels on
+    alternating rounds). ``render`` runs 1 spp per pass above 2^20 pixels (~1 megapixel)
     (``default_spp_per_pass``): there XLA inlines the sample loop, and before the twenty-fifth
     session the MIS value was fused into each of the fold's kernels and computed in each, 3-5x
     the per-sample time of a longer pass (a 1920x1080 MIS render at 8 spp: 12.1-12.3 CPU-s,
@@ -345,3 +345,50 @@ def test_bench_one_sample_pass(benchmark, estimator):
           f"wall s; load {os.getloadavg()[0]:.2f}")
     if not benchmark.disabled:
         assert ratio < 2.0
+
+
+def test_bench_path_one_sample_pass(benchmark):
+    """Per-sample time of a 1-spp path pass against an 8-spp one (256² Cornell box,
+    unbounded paths, the real pass, alternating rounds), in a render long enough (2 048
+    spp: 1.3·10⁸ samples) for ``path.compactions`` to compact a 1-spp pass's lanes three
+    times. With one sample per lane there is no path regeneration, and every batch of lanes
+    waits for its longest path: with one compaction a 1-spp pass took 1.73x an 8-spp pass's
+    CPU time per sample (122 against 71 ms per 65 536 samples), with three 1.16x (82 ms);
+    a 1920x1080 render of 64 spp 129 s -> 95 s. Fails above 1.4x; the wall-time ratio is
+    recorded beside it."""
+    from jaxrt.estimators import make_estimator, prepare_scene
+    from jaxrt.passes import RenderPass
+    from jaxrt.path import compactions
+
+    est = make_estimator("path")
+    scene = prepare_scene(cornell.cornell_box(256, 256), est)
+    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
+                     spp_total=2048, batch_size=64)
+    assert compactions(1, 256 * 256 * 2048) == 3
+    for count in (1, 8):
+        run.compile(count)
+    sums, cpu, wall = run.zeros(), {1: [], 8: []}, {1: [], 8: []}
+    rounds = 8 if not benchmark.disabled else 1
+
+    def go():
+        nonlocal sums
+        import time
+
+        for r in range(rounds):
+            for count in (1, 8) if r % 2 == 0 else (8, 1):
+                t0, w0 = time.process_time(), time.perf_counter()
+                sums = run(sums, 0, count)
+                cpu[count].append((time.process_time() - t0) / count)
+                wall[count].append((time.perf_counter() - w0) / count)
+
+    benchmark.pedantic(go, rounds=1, iterations=1)
+    ratio = _median(cpu[1]) / _median(cpu[8])
+    ratio_wall = _median(wall[1]) / _median(wall[8])
+    benchmark.extra_info.update({"per_sample_cpu_s_1": _median(cpu[1]),
+                                 "per_sample_cpu_s_8": _median(cpu[8]), "ratio": ratio,
+                                 "ratio_wall": ratio_wall, "load": os.getloadavg()})
+    print(f"\n  path: 1-spp pass {_median(cpu[1]) * 1e3:.1f} CPU-ms per spp (65 536 samples), "
+          f"8-spp {_median(cpu[8]) * 1e3:.1f}: {ratio:.2f}x per CPU-s, {ratio_wall:.2f}x per "
+          f"wall s; load {os.getloadavg()[0]:.2f}")
+    if not benchmark.disabled:
+        assert ratio < 1.4

@@ -31,7 +31,7 @@ from jaxrt.estimators import (
     camera_radiance,
     compiler_options_soon,
 )
-from jaxrt.path import pass_sums
+from jaxrt.path import compactions, pass_sums
 from jaxrt.sampler import pixel_key
 from jaxrt.scene import Scene
 from jaxrt.vecmath import computed_once
@@ -120,7 +120,8 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
         # L² stored before the fold reads it (as the loop carry stores it below), so that
         # LLVM cannot contract it into the TwoSum's adds: the same sums as `mis` at depth 2
         return pass_sums(scene, est, stream, pixels, count, sums,
-                         lambda a, v: _fold(a, (v, computed_once(v * v))))
+                         lambda a, v: _fold(a, (v, computed_once(v * v))),
+                         compactions(count, scene.width * scene.height * spp_total))
 
     # each lane's stream key once, outside the sample loop (jaxrt.sampler.pixel_key)
     keys = pixel_key(seed, pixels)
@@ -152,7 +153,7 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
         # ms: mis 44.4 / 49.8 -> 9.1 / 15.9, uniform_hemisphere 42.2 / 57.0 -> 18.9 / 34.3,
         # light_area 7.0 / 10.2 -> 5.4 / 9.0; bsdf, cosine_hemisphere and light_solid_angle
         # 0.83-0.96x per CPU-s (benchmarks/README.md, "twenty-fifth session"). Passes of 1
-        # spp are render's default from ~1.5 megapixels
+        # spp are render's default above 2^20 pixels (~1 megapixel)
         last = tuple(computed_once(x) for x in last)
     return _fold(acc, last)
 

@@ -58,7 +58,9 @@ its pixel's ``count`` samples one after the other (:func:`pass_sums`): when a la
 ends, the same step folds its value into the pixel's sums and starts the lane's next camera
 ray (path regeneration), so a lane is idle only once its last sample is done; and when at
 most a quarter of the lanes still run, those are gathered into a batch a quarter the size
-(the BVH's compaction, once: every stage is a copy of the step in the compiled program).
+(the BVH's compaction: once, or up to three times for passes of one or two samples per lane
+in long renders, :func:`compactions`; every stage is a copy of the step in the compiled
+program).
 Samples are folded in index order, so the sums are those of the plain loop over samples,
 bit for bit. Useful lane-steps, 256² Cornell box, unbounded, 32 samples per pass, per batch
 of 16 384 lanes: 22 % in lockstep (one path per lane), 55–71 % with regeneration, 71–83 %
@@ -207,10 +209,42 @@ def trace_path(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Path
 
 
 #: Lanes of a pass are compacted when the running ones fit in a quarter of them, at most
-#: this many times, never below MIN_COMPACT_LANES (as the BVH's traversal: below it the fixed
-#: cost of a step's kernels dominates). Every stage is a copy of the step in the program.
-MAX_COMPACTIONS = 1
+#: :func:`compactions` times (never more than this), never below MIN_COMPACT_LANES (as the
+#: BVH's traversal: below it the fixed cost of a step's kernels dominates). Every stage is a
+#: copy of the step in the program.
+MAX_COMPACTIONS = 3
 MIN_COMPACT_LANES = 256
+
+
+def compactions(count: int, samples: int) -> int:
+    """How many times a pass of ``count`` samples per lane compacts its lanes, for a render
+    of ``samples`` samples in all (pixels × spp; static).
+
+    Each compaction is a copy of the step in the program (+3.5–4 s of compile on a 2-core
+    Zen 4), and it pays where few samples per lane leave lanes idle: with one sample per lane
+    there is no regeneration, and every batch waits for its longest path. A 256² Cornell box
+    pass, unbounded, per 65 536 samples (ms of CPU, one process, alternating rounds; the sums
+    bit-identical across compactions):
+
+    ============ ====== ====== ======
+    count        1      2      4
+    ============ ====== ====== ======
+    1 compaction 122    88     70
+    2            93     72     62
+    3            82
+    ============ ====== ====== ======
+
+    (8 samples per lane: 71.) So a second compaction pays for its compile after ~13 M
+    samples at count 1 and ~32 M at count 2, a third after ~52 M at count 1. With a margin
+    of 2: 2 compactions from 2.5·10⁷ samples at count 1 and 6.4·10⁷ at count 2, 3 from 10⁸
+    at count 1, otherwise 1. Passes of 2 samples are render's default from ~0.7 megapixels,
+    of 1 above 2^20 pixels (:func:`jaxrt.render.default_spp_per_pass`): a 1920×1080 render
+    of 16 spp or more gets 2, of 64 or more 3 (benchmarks/README.md, "twenty-sixth
+    session").
+    """
+    if count == 1:
+        return 3 if samples >= 100_000_000 else 2 if samples >= 25_000_000 else 1
+    return 2 if count == 2 and samples >= 64_000_000 else 1
 
 
 class _Lane(NamedTuple):
@@ -221,7 +255,7 @@ class _Lane(NamedTuple):
 
 
 def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Stream],
-              pixels: Array, count: int, acc, fold: Callable):
+              pixels: Array, count: int, acc, fold: Callable, compact: int = 1):
     """``acc`` advanced by the samples ``0 … count−1`` of each pixel of ``pixels`` (N,),
     each lane one path after another with regeneration (module notes); ``stream(pixel, k)``
     is sample k's stream, ``acc`` has a leading axis of N.
@@ -229,10 +263,13 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
     ``fold(acc, value)`` adds one sample's radiance (3,) to a pixel's sums; a pixel's samples
     are folded in order. Each sample's value is the one
     :func:`jaxrt.estimators.camera_sample` computes. The lanes step in lockstep until at
-    most a quarter still run; those are gathered into a batch a quarter the size, and so on
-    down to :data:`MIN_COMPACT_LANES` (the BVH's schedule: only the schedule changes, not
-    any lane's steps).
+    most a quarter still run; those are gathered into a batch a quarter the size, ``compact``
+    times at most (:func:`compactions`), down to :data:`MIN_COMPACT_LANES` (the BVH's
+    schedule: only the schedule changes, not any lane's steps: the sums are the same bit for
+    bit).
     """
+    if not 0 <= compact <= MAX_COMPACTIONS:
+        raise ValueError(f"compact must be in 0 … {MAX_COMPACTIONS}, not {compact}")
     dtype = acc.s1.dtype
 
     def start(pixel, acc):
@@ -267,7 +304,7 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
     n = pixels.shape[0]
     ids = jnp.arange(n, dtype=jnp.int32)
     out, width = acc, n
-    for _ in range(MAX_COMPACTIONS):  # static: the widths are known at trace time
+    for _ in range(compact):  # static: the widths are known at trace time
         if width // 4 < MIN_COMPACT_LANES:
             break
         cap = width // 4
