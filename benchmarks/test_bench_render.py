@@ -301,6 +301,47 @@ def test_bench_point_light_vs_area_light(benchmark):
     assert ia.max() > 0, "the point-light box rendered black"
 
 
+def _one_sample_ratio(benchmark, estimator: str, longer: int, spp_total: int) -> float:
+    """A 1-spp pass's CPU time per spp against a ``longer``-spp pass's (256² Cornell box, the
+    real pass, alternating rounds); records both and the wall-time ratio, prints them, and
+    returns the CPU-time ratio."""
+    import time
+
+    from jaxrt.estimators import make_estimator, prepare_scene
+    from jaxrt.passes import RenderPass
+
+    est = make_estimator(estimator)
+    scene = prepare_scene(cornell.cornell_box(256, 256), est)
+    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
+                     spp_total=spp_total, batch_size=64)
+    counts = (1, longer)
+    for count in counts:
+        run.compile(count)
+    sums, cpu, wall = run.zeros(), {c: [] for c in counts}, {c: [] for c in counts}
+    rounds = 8 if not benchmark.disabled else 1
+
+    def go():
+        nonlocal sums
+        for r in range(rounds):
+            for count in counts if r % 2 == 0 else counts[::-1]:
+                t0, w0 = time.process_time(), time.perf_counter()
+                sums = run(sums, 0, count)
+                cpu[count].append((time.process_time() - t0) / count)
+                wall[count].append((time.perf_counter() - w0) / count)
+
+    benchmark.pedantic(go, rounds=1, iterations=1)
+    ratio = _median(cpu[1]) / _median(cpu[longer])
+    ratio_wall = _median(wall[1]) / _median(wall[longer])
+    benchmark.extra_info.update({"per_sample_cpu_s_1": _median(cpu[1]),
+                                 f"per_sample_cpu_s_{longer}": _median(cpu[longer]),
+                                 "ratio": ratio, "ratio_wall": ratio_wall,
+                                 "load": os.getloadavg()})
+    print(f"\n  {estimator}: 1-spp pass {_median(cpu[1]) * 1e3:.1f} CPU-ms per spp (65 536 "
+          f"samples), {longer}-spp {_median(cpu[longer]) * 1e3:.1f}: {ratio:.2f}x per CPU-s, "
+          f"{ratio_wall:.2f}x per wall s; load {os.getloadavg()[0]:.2f}")
+    return ratio
+
+
 @pytest.mark.parametrize("estimator", ["mis", "light_area", "bsdf"])
 def test_bench_one_sample_pass(benchmark, estimator):
     """Per-sample time of a 1-spp pass against a 4-spp pass (256² Cornell box, the real pass,
@@ -311,38 +352,7 @@ def test_bench_one_sample_pass(benchmark, estimator):
     now 4.4-5.6). Fails when a 1-spp pass takes above 2x a 4-spp pass's CPU time per sample (a
     pass of one sample also pays the prologue's camera hit and the step's slices of the sums
     once per sample); the wall-time ratio is recorded beside it."""
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import RenderPass
-
-    est = make_estimator(estimator)
-    scene = prepare_scene(cornell.cornell_box(256, 256), est)
-    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
-                     spp_total=64, batch_size=64)
-    for count in (1, 4):
-        run.compile(count)
-    sums, cpu, wall = run.zeros(), {1: [], 4: []}, {1: [], 4: []}
-    rounds = 8 if not benchmark.disabled else 1
-
-    def go():
-        nonlocal sums
-        import time
-
-        for r in range(rounds):
-            for count in (1, 4) if r % 2 == 0 else (4, 1):
-                t0, w0 = time.process_time(), time.perf_counter()
-                sums = run(sums, 0, count)
-                cpu[count].append((time.process_time() - t0) / count)
-                wall[count].append((time.perf_counter() - w0) / count)
-
-    benchmark.pedantic(go, rounds=1, iterations=1)
-    ratio = _median(cpu[1]) / _median(cpu[4])
-    ratio_wall = _median(wall[1]) / _median(wall[4])
-    benchmark.extra_info.update({"per_sample_cpu_s_1": _median(cpu[1]),
-                                 "per_sample_cpu_s_4": _median(cpu[4]), "ratio": ratio,
-                                 "ratio_wall": ratio_wall, "load": os.getloadavg()})
-    print(f"\n  {estimator}: 1-spp pass {_median(cpu[1]) * 1e3:.1f} CPU-ms per sample, "
-          f"4-spp {_median(cpu[4]) * 1e3:.1f}: {ratio:.2f}x per CPU-s, {ratio_wall:.2f}x per "
-          f"wall s; load {os.getloadavg()[0]:.2f}")
+    ratio = _one_sample_ratio(benchmark, estimator, 4, 64)
     if not benchmark.disabled:
         assert ratio < 2.0
 
@@ -356,39 +366,9 @@ def test_bench_path_one_sample_pass(benchmark):
     CPU time per sample (122 against 71 ms per 65 536 samples), with three 1.16x (82 ms);
     a 1920x1080 render of 64 spp 129 s -> 95 s. Fails above 1.4x; the wall-time ratio is
     recorded beside it."""
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import RenderPass
     from jaxrt.path import compactions
 
-    est = make_estimator("path")
-    scene = prepare_scene(cornell.cornell_box(256, 256), est)
-    run = RenderPass(scene, 0, jax.devices()[:1], 256, est=est, sampler="independent",
-                     spp_total=2048, batch_size=64)
     assert compactions(1, 256 * 256 * 2048) == 3
-    for count in (1, 8):
-        run.compile(count)
-    sums, cpu, wall = run.zeros(), {1: [], 8: []}, {1: [], 8: []}
-    rounds = 8 if not benchmark.disabled else 1
-
-    def go():
-        nonlocal sums
-        import time
-
-        for r in range(rounds):
-            for count in (1, 8) if r % 2 == 0 else (8, 1):
-                t0, w0 = time.process_time(), time.perf_counter()
-                sums = run(sums, 0, count)
-                cpu[count].append((time.process_time() - t0) / count)
-                wall[count].append((time.perf_counter() - w0) / count)
-
-    benchmark.pedantic(go, rounds=1, iterations=1)
-    ratio = _median(cpu[1]) / _median(cpu[8])
-    ratio_wall = _median(wall[1]) / _median(wall[8])
-    benchmark.extra_info.update({"per_sample_cpu_s_1": _median(cpu[1]),
-                                 "per_sample_cpu_s_8": _median(cpu[8]), "ratio": ratio,
-                                 "ratio_wall": ratio_wall, "load": os.getloadavg()})
-    print(f"\n  path: 1-spp pass {_median(cpu[1]) * 1e3:.1f} CPU-ms per spp (65 536 samples), "
-          f"8-spp {_median(cpu[8]) * 1e3:.1f}: {ratio:.2f}x per CPU-s, {ratio_wall:.2f}x per "
-          f"wall s; load {os.getloadavg()[0]:.2f}")
+    ratio = _one_sample_ratio(benchmark, "path", 8, 2048)
     if not benchmark.disabled:
         assert ratio < 1.4
