@@ -226,13 +226,13 @@ def compactions(count: int, samples: int) -> int:
     pass, unbounded, per 65 536 samples (ms of CPU, one process, alternating rounds; the sums
     bit-identical across compactions):
 
-    ============ ====== ====== ======
-    count        1      2      4
-    ============ ====== ====== ======
-    1 compaction 122    88     70
-    2            93     72     62
-    3            82
-    ============ ====== ====== ======
+    =================== ====== ====== ======
+    compactions / count 1      2      4
+    =================== ====== ====== ======
+    1                   122    88     70
+    2                   93     72     62
+    3                   82
+    =================== ====== ====== ======
 
     (8 samples per lane: 71.) So a second compaction pays for its compile after ~13 M
     samples at count 1 and ~32 M at count 2, a third after ~52 M at count 1. With a margin
@@ -240,7 +240,9 @@ def compactions(count: int, samples: int) -> int:
     at count 1, otherwise 1. Passes of 2 samples are render's default from ~0.7 megapixels,
     of 1 above 2^20 pixels (:func:`jaxrt.render.default_spp_per_pass`): a 1920×1080 render
     of 16 spp or more gets 2, of 64 or more 3 (benchmarks/README.md, "twenty-sixth
-    session").
+    session"). An unbounded render (``spp=None``: a time budget or a target error) counts as
+    one pass, its length unknown when the pass compiles: it keeps 1 unless its passes are
+    long enough alone.
     """
     if count == 1:
         return 3 if samples >= 100_000_000 else 2 if samples >= 25_000_000 else 1
