@@ -79,6 +79,29 @@ def test_pass_chunking_changes_no_bit():
     assert one.nonfinite == 0 and np.mean(one.stderr > 0) > 0.5  # noisy: the test can fail
 
 
+@pytest.fixture
+def fresh_traces():
+    """JAX's caches cleared before and after: the tests below patch what a pass traces
+    (module constants, ``passes.compactions``) under the same static arguments."""
+    import jax
+
+    jax.clear_caches()
+    yield
+    jax.clear_caches()
+
+
+def _path_pass(count: int, spp_total: int = 4):
+    import jax
+
+    from jaxrt.estimators import prepare_scene
+    from jaxrt.passes import RenderPass
+
+    est = make_estimator("path")
+    scene = prepare_scene(cornell_box(32, 32), est)
+    return RenderPass(scene, 3, jax.devices()[:1], 256, est=est, sampler="independent",
+                      spp_total=spp_total, batch_size=64)
+
+
 def _pass_with_compactions(monkeypatch, compact: int, count: int = 1):
     """A 32×32 path pass of ``count`` samples per lane compacting its lanes ``compact``
     times (down to 16 lanes: MIN_COMPACT_LANES lowered so that a small image compacts), its
@@ -87,21 +110,17 @@ def _pass_with_compactions(monkeypatch, compact: int, count: int = 1):
 
     import jaxrt.passes as ps
     import jaxrt.path as jp
-    from jaxrt.estimators import prepare_scene
 
     monkeypatch.setattr(jp, "MIN_COMPACT_LANES", 16)
     monkeypatch.setattr(ps, "compactions", lambda count, samples: compact)
     jax.clear_caches()  # the same static arguments for every `compact`: trace afresh
-    est = make_estimator("path")
-    scene = prepare_scene(cornell_box(32, 32), est)
-    run = ps.RenderPass(scene, 3, jax.devices()[:1], 256, est=est, sampler="independent",
-                        spp_total=4, batch_size=64)
+    run = _path_pass(count)
     sums = run(run(run.zeros(), 0, count), count, count)
     return [np.asarray(a) for a in sums], run.compiled[count].as_text().count(" while(")
 
 
 @pytest.mark.parametrize("count", [1, 2])
-def test_compactions_change_no_bit(monkeypatch, count):
+def test_compactions_change_no_bit(monkeypatch, fresh_traces, count):
     """A pass's lanes are compacted 0 to 3 times (``path.compactions`` chooses by the
     samples per lane and the render's size): only the schedule changes, so the sums are
     the same bit for bit, while the program holds more while loops with each compaction
@@ -116,15 +135,23 @@ def test_compactions_change_no_bit(monkeypatch, count):
             assert np.array_equal(a, b)
 
 
-def test_compactions_grow_with_the_render():
+def test_compactions_grow_with_the_render(monkeypatch, fresh_traces):
     """Passes of one or two samples per lane in long renders compact more (the measured
     break-even with the compile's cost, ``path.compactions``); the pass asks for them by
-    the scene's pixels × spp."""
+    its samples per lane and the render's pixels × spp."""
+    import jaxrt.passes as ps
     from jaxrt.path import compactions
+
     hd = 1920 * 1080
     assert [compactions(1, hd * spp) for spp in (8, 16, 64)] == [1, 2, 3]
     assert [compactions(2, hd * spp) for spp in (16, 32, 64)] == [1, 2, 2]
     assert compactions(4, hd * 4096) == compactions(32, hd * 4096) == 1
+    asked = []
+    monkeypatch.setattr(ps, "compactions", lambda count, samples: asked.append(
+        (count, samples)) or compactions(count, samples))
+    fn, args, static, _, _ = _path_pass(2, spp_total=64).job(2)
+    fn.trace(*args, **static)
+    assert asked == [(2, 32 * 32 * 64)]
 
 
 def test_time_budget_target_error_and_progress_hold_for_paths(capsys):
