@@ -168,6 +168,13 @@ def winner_hit(frame: RayFrame, t: Array, prim: Array, v: list, ng: Array,
                p_error=jnp.where(hit, jnp.stack(p_error), zero3))
 
 
+def miss_hit(dtype) -> Hit:
+    """The :class:`Hit` of a ray that meets nothing (``t = inf``, ``prim = −1``, zeros)."""
+    zero, zero3 = jnp.zeros((), dtype), jnp.zeros(3, dtype)
+    return Hit(t=jnp.asarray(jnp.inf, dtype), prim=jnp.int32(-1), b1=zero, b2=zero, ng=zero3,
+               p=zero3, p_error=zero3)
+
+
 class RayFrame(NamedTuple):
     """Per-ray part of the watertight test, computed once and reused for every triangle.
 
@@ -346,11 +353,14 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
     Solves ``o + t d = (1 − b1 − b2) v0 + b1 v1 + b2 v2`` for ``0 < t ≤ t_max``,
     ``b1, b2 ≥ 0, b1 + b2 ≤ 1``, deciding inside/outside with sign-consistent edge functions so
     that a ray through an edge or vertex shared by two triangles hits at least one of them.
+    That holds for the vertices in any order: they are tested sorted by ``(x, y, z)``, as the
+    brute-force and BVH loops test them, so two triangles sharing an edge evaluate it by one
+    expression (the module notes); hit or miss and ``t`` do not depend on the order given.
 
     Args:
         origin: (3,) ray origin.
         direction: (3,) ray direction (any non-zero length; components may be exactly 0).
-        v0, v1, v2: (3,) triangle vertices.
+        v0, v1, v2: (3,) triangle vertices, in any order; ``b1, b2`` refer to them as given.
         t_max: () largest accepted distance (may be ``inf``), in units of ``‖direction‖``.
     Returns:
         ``(t, b1, b2)``: scalars; ``t = +inf`` and ``b1 = b2 = 0`` on a miss. Zero-area
@@ -359,13 +369,40 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
     """
     origin, direction, v0, v1, v2 = jnp.broadcast_arrays(origin, direction, v0, v1, v2)
     t_max = jnp.asarray(t_max, direction.dtype)
-    t, b1, b2 = intersect_triangle_frame(ray_frame(origin, direction), v0, v1, v2, t_max)
+    # tested with the vertices in the canonical order, as the loops test them (the module
+    # notes): a ray through an edge shared with a neighbour then hits one of the two
+    (s0, s1, s2), (w0, w1, w2) = _canonical_order(v0, v1, v2)
+    t, c1, c2 = intersect_triangle_frame(ray_frame(origin, direction), s0, s1, s2, t_max)
+    # the sorted vertices' weights (1 − c1 − c2, c1, c2) back to the vertices as given
+    weights = (jnp.where(t < jnp.inf, 1 - c1 - c2, 0), c1, c2)
+    b1 = sum(jnp.where(w == 1, c, 0) for w, c in zip((w0, w1, w2), weights, strict=True))
+    b2 = sum(jnp.where(w == 2, c, 0) for w, c in zip((w0, w1, w2), weights, strict=True))
     n = cross(v1 - v0, v2 - v0)
     # a zero-area triangle has no interior: reject before its sheared sliver can produce det ≠ 0
     degenerate = dot(n, n) == 0
     zero = jnp.zeros_like(t)
     return (jnp.where(degenerate, jnp.asarray(jnp.inf, t.dtype), t),
             jnp.where(degenerate, zero, b1), jnp.where(degenerate, zero, b2))
+
+
+def _canonical_order(v0: Array, v1: Array, v2: Array) -> tuple[tuple, tuple]:
+    """The vertices sorted lexicographically by ``(x, y, z)`` (:func:`canonical_vertices` in a
+    program), and which given vertex each sorted one is: ``((s0, s1, s2), (i0, i1, i2))``."""
+
+    def before(a, b):  # a < b in (x, y, z) order
+        return (a[0] < b[0]) | ((a[0] == b[0]) & ((a[1] < b[1]) | ((a[1] == b[1]) & (a[2] < b[2]))))
+
+    def swap(a, ia, b, ib):  # (a, b) in order, with their indices
+        keep = ~before(b, a)
+        return (jnp.where(keep, a, b), jnp.where(keep, ia, ib),
+                jnp.where(keep, b, a), jnp.where(keep, ib, ia))
+
+    # a three-element sorting network: (0, 1), (1, 2), (0, 1)
+    i0, i1, i2 = jnp.int32(0), jnp.int32(1), jnp.int32(2)
+    v0, i0, v1, i1 = swap(v0, i0, v1, i1)
+    v1, i1, v2, i2 = swap(v1, i1, v2, i2)
+    v0, i0, v1, i1 = swap(v0, i0, v1, i1)
+    return (v0, v1, v2), (i0, i1, i2)
 
 
 #: Brute-force sets hold fewer triangles than this: the closest-hit loop carries the index in a
