@@ -44,7 +44,7 @@ from jaxrt import materials as mt
 from jaxrt.accel import build_geometry
 from jaxrt.convex import convex_any_hit, convex_closest_hit
 from jaxrt.derivatives import nondifferentiable
-from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma
+from jaxrt.intersect import TriangleSet, any_hit, closest_hit, gamma, miss_hit
 from jaxrt.occluders import shadow_blockers
 from jaxrt.shared_origin import closest_hit_from_origin, eye_planes
 from jaxrt.spawn import short_of
@@ -398,12 +398,15 @@ def intersect(scene: Scene, o: Array, d: Array, t_max: Array, shared_origin: boo
         prims, bodies = scene.convex.others, scene.convex  # the bodies by their planes
     if prims is not None:  # the rows tested, gathered once per batch of rays
         geometry = jax.tree.map(lambda a: a[prims], geometry)
-    if shared_origin and isinstance(geometry, TriangleSet):
+    if prims is not None and prims.shape[0] == 0:
+        # nothing can block or emit (a lone plane under delta lights): the ray reaches none
+        hit = miss_hit(o.dtype)
+    elif shared_origin and isinstance(geometry, TriangleSet):
         hit = closest_hit_from_origin(geometry, o, d, t_max, scene.eye_planes)
     else:  # a hit shading continues from (not the eye's, not an emitter's): see winner_hit
         hit = closest_hit(geometry, o, d, t_max,
                           stored_barycentrics=not (emission_only or shared_origin))
-    if prims is not None:  # back to the scene's triangle indices
+    if prims is not None and prims.shape[0]:  # back to the scene's triangle indices
         prim = jnp.where(hit.prim >= 0, prims[jnp.maximum(hit.prim, 0)], -1)
         if emission_only and scene.convex is not None:
             # a convex body before the emitter: the ray reaches none (stopping short of the

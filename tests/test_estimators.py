@@ -311,3 +311,26 @@ def test_estimate_at_refuses_a_viewer_below_the_surface():
         estimate_at(s, "mis", np.zeros(3), Z, -WO)
     with pytest.raises(ValueError, match="not above the surface"):
         estimate_at(s, "mis", np.zeros(3), Z, np.array([1.0, 0.0, 0.0]))  # grazing: n·wo = 0
+
+
+@pytest.mark.parametrize("estimator", ["mis", "mis_one_sample", "bsdf", "uniform_hemisphere",
+                                       "cosine_hemisphere", "light_area", "path"])
+def test_a_lone_plane_under_a_point_light_renders(estimator):
+    """Nothing in the scene can block a shadow ray or emit: the BSDF ray's query tests an empty
+    set of triangles (it once raised IndexError). Light sampling sees the point light; BSDF
+    and hemisphere sampling cannot (a delta light), and return exactly 0."""
+    from jaxrt.lights import point_light
+    from jaxrt.materials import diffuse
+    from jaxrt.render import render
+    from jaxrt.scene import build_scene, mesh
+
+    v = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], float)
+    cam = look_at(eye=[0, 1, 5], target=[0, 0, 0], up=[0, 1, 0], fov_deg=30, width=8, height=8)
+    scene = build_scene([mesh(v, [[0, 2, 1], [0, 3, 2]], diffuse(0.5))], cam,
+                        [point_light([0, 2, 1], [1, 1, 1])])
+    image = render(scene, estimator, spp=4, progress=False).image
+    assert np.all(np.isfinite(image))
+    if estimator in ("bsdf", "uniform_hemisphere", "cosine_hemisphere"):
+        assert np.all(image == 0)
+    else:
+        assert image.max() > 0
