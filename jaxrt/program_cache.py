@@ -28,10 +28,21 @@ The cache is off unless a directory is set: the ``jaxrt`` command sets
 ``$XDG_CACHE_HOME/jaxrt/programs`` (else ``~/.cache/jaxrt/programs``) and turns it off with
 the XLA cache (``--no-compile-cache``, ``JAXRT_NO_COMPILE_CACHE=1``); importing the library
 never does. At most :data:`MAX_FILES` programs are kept (least recently used go first).
+
+In memory, whether or not a directory is set, a process keeps the last :data:`MAX_PROGRAMS`
+programs it compiled or loaded, under the same key, so that rendering a scene of a structure
+seen recently compiles nothing. Beyond that the least recently used is released, with what
+XLA:CPU holds for it (its machine code is mapped in ~150–400 memory maps and ~25 MB per
+program): each program is traced through a ``jax.jit`` of its own, so JAX's tracing,
+lowering and compilation caches, which key on the function weakly, let go of it too. Without
+this bound a process that renders many scene structures (a sweep, a notebook, a test worker)
+kept every program JAX compiled for it, and at the kernel's ``vm.max_map_count`` (65 530) LLVM
+failed to map a new program and the process died. :func:`release_programs` drops them all.
 """
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import functools
 import hashlib
@@ -52,8 +63,12 @@ import numpy as np
 DIRECTORY: str | None = None
 #: Programs kept at most; the least recently used are deleted beyond this.
 MAX_FILES = 64
+#: Programs kept in this process's memory at most; the least recently used are released.
+MAX_PROGRAMS = 16
 #: What this process did: programs loaded, compiled and stored, files ignored as unreadable.
 STATS = {"hits": 0, "misses": 0, "stores": 0, "unreadable": 0}
+
+_IN_MEMORY: collections.OrderedDict = collections.OrderedDict()  # key -> Compiled, LRU first
 
 _MAGIC = b"jaxrt-program-v1\n"
 _SUFFIX = ".jaxrt-program"
@@ -130,11 +145,38 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, devices, resolv
     name the options they ask for and resolve them to the ones this XLA accepts
     (:func:`jaxrt.estimators.compiler_options_soon`): the accepted set is a function of the
     asked set and the jaxlib version, both in the key, so a hit needs no probe.
-    Returns a ``jax.stages.Compiled``.
+    Returns a ``jax.stages.Compiled``, kept in memory among the last :data:`MAX_PROGRAMS`.
     """
+    key = program_key(fn, args, static, options, devices)
+    compiled = _IN_MEMORY.get(key)
+    if compiled is None:
+        compiled = _compile_or_load(key, fn, args, static, options, devices, resolve)
+    _IN_MEMORY[key] = compiled
+    _IN_MEMORY.move_to_end(key)
+    while len(_IN_MEMORY) > MAX_PROGRAMS:
+        _IN_MEMORY.popitem(last=False)
+    return compiled
+
+
+def release_programs() -> int:
+    """Release every compiled program this process keeps in memory; returns how many.
+
+    What XLA holds for them (machine code, memory maps) goes with the last reference: a
+    :class:`jaxrt.RenderResult` holds none, so after this a later render of any scene compiles
+    (or reads from the directory) again. Programs a user compiled through their own
+    ``jax.jit`` (of :func:`jaxrt.estimate_image`, say) live in JAX's caches instead:
+    ``jax.clear_caches()`` releases those.
+    """
+    count = len(_IN_MEMORY)
+    _IN_MEMORY.clear()
+    return count
+
+
+def _compile_or_load(key: str, fn, args: tuple, static: dict, options: dict, devices,
+                     resolve):
+    """The program of ``key``: from the directory when it holds it, else compiled (and stored)."""
     if DIRECTORY is None:
         return _compile(fn, args, static, options, resolve)
-    key = program_key(fn, args, static, options, devices)
     path = Path(DIRECTORY) / (key + _SUFFIX)
     in_tree = jax.tree.structure((args, {}))
     if path.exists():
@@ -156,10 +198,26 @@ def compile_cached(fn, args: tuple, static: dict, options: dict, devices, resolv
 
 def _compile(fn, args: tuple, static: dict, options: dict, resolve):
     pending = options if resolve is None else resolve()
-    lowered = fn.lower(*args, **static)
+    lowered = _own_jit(fn, tuple(static)).lower(*args, **static)
     if isinstance(pending, concurrent.futures.Future):
         pending = pending.result()
     return lowered.compile(pending)
+
+
+def _own_jit(fn, static_argnames: tuple):
+    """``jax.jit`` of the function ``fn`` jits, through a wrapper of this call's own.
+
+    JAX's caches key on the Python function weakly and hold what they computed for it
+    strongly (the jaxpr, the lowered module, the executable): traced through a wrapper that
+    only the compiled program's caller keeps alive, all of it is released with the program.
+    """
+    inner = getattr(fn, "__wrapped__", fn)
+
+    @functools.wraps(inner)
+    def program(*args, **kwargs):
+        return inner(*args, **kwargs)
+
+    return jax.jit(program, static_argnames=static_argnames)
 
 
 #: JAX persistent-cache hits in this thread (see :func:`compile_cached`).

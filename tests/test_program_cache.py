@@ -21,7 +21,9 @@ SIZE = 8
 
 @pytest.fixture
 def cache_dir(tmp_path, monkeypatch):
-    """The program cache in a fresh directory, its counters at zero; off again afterwards."""
+    """The program cache in a fresh directory, its counters at zero; off again afterwards.
+    No program is kept in memory meanwhile, so that every render asks the directory."""
+    monkeypatch.setattr(program_cache, "MAX_PROGRAMS", 0)
     monkeypatch.setattr(program_cache, "DIRECTORY", str(tmp_path / "programs"))
     monkeypatch.setattr(program_cache, "STATS", dict.fromkeys(program_cache.STATS, 0))
     return tmp_path / "programs"
@@ -189,3 +191,42 @@ def test_least_recently_used_programs_are_evicted(cache_dir, monkeypatch):
     render(box, "mis", spp=1, progress=False)
     files = _files(cache_dir)
     assert len(files) == 1 and files[0].name.startswith(_key(box, count=1, spp=1))
+
+
+# ---------------------------------------------------------------- programs kept in memory
+
+
+@pytest.fixture
+def compiles(monkeypatch):
+    """The keys of the programs compiled (not found in memory) from here on, in order."""
+    seen = []
+    real = program_cache._compile_or_load
+    monkeypatch.setattr(program_cache, "_compile_or_load",
+                        lambda key, *a: seen.append(key) or real(key, *a))
+    program_cache.release_programs()
+    yield seen
+    program_cache.release_programs()
+
+
+def test_a_scene_of_a_structure_in_memory_compiles_nothing(compiles):
+    box = scenes.cornell_box(SIZE, SIZE)
+    first = render(box, "mis", spp=2, seed=1, progress=False)
+    # new numbers (another seed, another albedo), same structure: the same program
+    brighter = box.replace(materials=box.materials._replace(kd=box.materials.kd * 0.5))
+    again = render(brighter, "mis", spp=2, seed=2, progress=False)
+    assert len(compiles) == 1
+    assert not np.array_equal(first.image, again.image)
+
+
+def test_only_the_last_programs_are_kept(compiles, monkeypatch):
+    monkeypatch.setattr(program_cache, "MAX_PROGRAMS", 2)
+    sizes = [(SIZE, SIZE), (SIZE, SIZE + 1), (SIZE, SIZE + 2)]
+    for w, h in sizes:
+        render(scenes.cornell_box(w, h), "light_area", spp=1, progress=False)
+    assert len(compiles) == 3 and len(program_cache._IN_MEMORY) == 2
+    # the most recent two are in memory; the first was released and compiles again
+    render(scenes.cornell_box(*sizes[2]), "light_area", spp=1, progress=False)
+    assert len(compiles) == 3
+    render(scenes.cornell_box(*sizes[0]), "light_area", spp=1, progress=False)
+    assert len(compiles) == 4 and compiles[3] == compiles[0]
+    assert program_cache.release_programs() == 2 and not program_cache._IN_MEMORY
