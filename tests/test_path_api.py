@@ -81,13 +81,16 @@ def test_pass_chunking_changes_no_bit():
 
 @pytest.fixture
 def fresh_traces():
-    """JAX's caches cleared before and after: the tests below patch what a pass traces
-    (module constants, ``passes.compactions``) under the same static arguments."""
+    """JAX's caches and jaxrt's programs in memory cleared before and after: the tests below
+    patch what a pass traces (module constants, ``passes.compactions``) under the same static
+    arguments."""
     import jax
 
-    jax.clear_caches()
+    from jaxrt import program_cache
+
+    jax.clear_caches(), program_cache.release_programs()
     yield
-    jax.clear_caches()
+    jax.clear_caches(), program_cache.release_programs()
 
 
 def _path_pass(count: int, spp_total: int = 4):
@@ -113,7 +116,10 @@ def _pass_with_compactions(monkeypatch, compact: int, count: int = 1):
 
     monkeypatch.setattr(jp, "MIN_COMPACT_LANES", 16)
     monkeypatch.setattr(ps, "compactions", lambda count, samples: compact)
-    jax.clear_caches()  # the same static arguments for every `compact`: trace afresh
+    from jaxrt import program_cache
+
+    # the same static arguments for every `compact`: trace afresh
+    jax.clear_caches(), program_cache.release_programs()
     run = _path_pass(count)
     sums = run(run(run.zeros(), 0, count), count, count)
     return [np.asarray(a) for a in sums], run.compiled[count].as_text().count(" while(")
