@@ -371,38 +371,19 @@ def intersect_triangle(origin: Array, direction: Array, v0: Array, v1: Array, v2
     t_max = jnp.asarray(t_max, direction.dtype)
     # tested with the vertices in the canonical order, as the loops test them (the module
     # notes): a ray through an edge shared with a neighbour then hits one of the two
-    (s0, s1, s2), (w0, w1, w2) = _canonical_order(v0, v1, v2)
+    given = jnp.stack([v0, v1, v2])
+    order = canonical_order(given, jnp)
+    s0, s1, s2 = given[order]
     t, c1, c2 = intersect_triangle_frame(ray_frame(origin, direction), s0, s1, s2, t_max)
     # the sorted vertices' weights (1 − c1 − c2, c1, c2) back to the vertices as given
-    weights = (jnp.where(t < jnp.inf, 1 - c1 - c2, 0), c1, c2)
-    b1 = sum(jnp.where(w == 1, c, 0) for w, c in zip((w0, w1, w2), weights, strict=True))
-    b2 = sum(jnp.where(w == 2, c, 0) for w, c in zip((w0, w1, w2), weights, strict=True))
+    weights = jnp.stack([jnp.where(t < jnp.inf, 1 - c1 - c2, 0), c1, c2])
+    b1, b2 = jnp.zeros_like(weights).at[order].set(weights)[1:]
     n = cross(v1 - v0, v2 - v0)
     # a zero-area triangle has no interior: reject before its sheared sliver can produce det ≠ 0
     degenerate = dot(n, n) == 0
     zero = jnp.zeros_like(t)
     return (jnp.where(degenerate, jnp.asarray(jnp.inf, t.dtype), t),
             jnp.where(degenerate, zero, b1), jnp.where(degenerate, zero, b2))
-
-
-def _canonical_order(v0: Array, v1: Array, v2: Array) -> tuple[tuple, tuple]:
-    """The vertices sorted lexicographically by ``(x, y, z)`` (:func:`canonical_vertices` in a
-    program), and which given vertex each sorted one is: ``((s0, s1, s2), (i0, i1, i2))``."""
-
-    def before(a, b):  # a < b in (x, y, z) order
-        return (a[0] < b[0]) | ((a[0] == b[0]) & ((a[1] < b[1]) | ((a[1] == b[1]) & (a[2] < b[2]))))
-
-    def swap(a, ia, b, ib):  # (a, b) in order, with their indices
-        keep = ~before(b, a)
-        return (jnp.where(keep, a, b), jnp.where(keep, ia, ib),
-                jnp.where(keep, b, a), jnp.where(keep, ib, ia))
-
-    # a three-element sorting network: (0, 1), (1, 2), (0, 1)
-    i0, i1, i2 = jnp.int32(0), jnp.int32(1), jnp.int32(2)
-    v0, i0, v1, i1 = swap(v0, i0, v1, i1)
-    v1, i1, v2, i2 = swap(v1, i1, v2, i2)
-    v0, i0, v1, i1 = swap(v0, i0, v1, i1)
-    return (v0, v1, v2), (i0, i1, i2)
 
 
 #: Brute-force sets hold fewer triangles than this: the closest-hit loop carries the index in a
@@ -598,9 +579,15 @@ def canonical_vertices(triangles: np.ndarray) -> np.ndarray:
     (F, 3, 3) out; the set of vertices, hence the triangle, is unchanged.
     """
     t = np.asarray(triangles)
+    return np.take_along_axis(t, canonical_order(t)[..., None], axis=1)
+
+
+def canonical_order(triangles, xp=np):
+    """Indices that sort each triangle's vertices by ``(x, y, z)``: shape (…, 3, 3) in, (…, 3)
+    out (``xp``: ``numpy`` on the host, ``jax.numpy`` in a program; a stable sort, so both
+    give the same order)."""
     # lexsort keys: last is primary
-    order = np.lexsort((t[..., 2], t[..., 1], t[..., 0]), axis=-1)
-    return np.take_along_axis(t, order[..., None], axis=1)
+    return xp.lexsort((triangles[..., 2], triangles[..., 1], triangles[..., 0]), axis=-1)
 
 
 def closest_hit(geometry, origin: Array, direction: Array, t_max: Array,
