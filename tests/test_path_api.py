@@ -88,9 +88,11 @@ def fresh_traces():
 
     from jaxrt import program_cache
 
-    jax.clear_caches(), program_cache.release_programs()
+    jax.clear_caches()
+    program_cache.release_programs()
     yield
-    jax.clear_caches(), program_cache.release_programs()
+    jax.clear_caches()
+    program_cache.release_programs()
 
 
 def _path_pass(count: int, spp_total: int = 4):
@@ -119,7 +121,8 @@ def _pass_with_compactions(monkeypatch, compact: int, count: int = 1):
     from jaxrt import program_cache
 
     # the same static arguments for every `compact`: trace afresh
-    jax.clear_caches(), program_cache.release_programs()
+    jax.clear_caches()
+    program_cache.release_programs()
     run = _path_pass(count)
     sums = run(run(run.zeros(), 0, count), count, count)
     return [np.asarray(a) for a in sums], run.compiled[count].as_text().count(" while(")
