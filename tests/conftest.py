@@ -71,3 +71,19 @@ def compiles_in_fresh_process(tmp_path):
         return json.loads(out.splitlines()[-1])
 
     return run
+
+
+@pytest.fixture
+def fresh_traces():
+    """JAX's caches and jaxrt's programs in memory cleared before and after: for tests that
+    patch what a pass traces (module constants, ``passes.compactions``, a shading function)
+    under the same static arguments, which both caches would otherwise answer unpatched."""
+    import jax
+
+    from jaxrt import program_cache
+
+    jax.clear_caches()
+    program_cache.release_programs()
+    yield
+    jax.clear_caches()
+    program_cache.release_programs()

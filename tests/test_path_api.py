@@ -79,22 +79,6 @@ def test_pass_chunking_changes_no_bit():
     assert one.nonfinite == 0 and np.mean(one.stderr > 0) > 0.5  # noisy: the test can fail
 
 
-@pytest.fixture
-def fresh_traces():
-    """JAX's caches and jaxrt's programs in memory cleared before and after: the tests below
-    patch what a pass traces (module constants, ``passes.compactions``) under the same static
-    arguments."""
-    import jax
-
-    from jaxrt import program_cache
-
-    jax.clear_caches()
-    program_cache.release_programs()
-    yield
-    jax.clear_caches()
-    program_cache.release_programs()
-
-
 def _path_pass(count: int, spp_total: int = 4):
     import jax
 
