@@ -80,14 +80,14 @@ def machine_description() -> dict:
 
 def _render_pass(scene, estimator: str, sampler: str, seed: int, tile_size: int,
                  batch_size: int, devices: int, spp_total: int, **params):
-    """jaxrt's :class:`~jaxrt.passes.RenderPass` for ``scene`` (what ``render`` runs), and a
-    function from its carried sums after ``n`` samples to ``(image, stderr)``, (H, W, 3)
+    """jaxrt's :class:`~jaxrt.rendering.passes.RenderPass` for ``scene`` (what ``render`` runs), and
+    a function from its carried sums after ``n`` samples to ``(image, stderr)``, (H, W, 3)
     float64."""
     import jax
 
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import LANES, RenderPass, Sums
-    from jaxrt.render import _mean_and_error
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.rendering.driver import _mean_and_error
+    from jaxrt.rendering.passes import LANES, RenderPass, Sums
 
     est = make_estimator(estimator, **params)
     scene = prepare_scene(scene, est)
@@ -108,8 +108,8 @@ def progressive(scene, estimator: str = "mis", levels=LEVELS, sampler: str = "in
                 devices: int = 1, **params) -> tuple[list[dict], float]:
     """Render ``scene`` progressively and snapshot the image at each spp in ``levels``.
 
-    Uses the same machinery as :func:`jaxrt.render.render` (its ``RenderPass``: same tiles,
-    same sample indices, the sums carried from pass to pass, so the image at ``n`` spp is
+    Uses the same machinery as :func:`jaxrt.rendering.driver.render` (its ``RenderPass``: same
+    tiles, same sample indices, the sums carried from pass to pass, so the image at ``n`` spp is
     bit-identical to ``render(..., spp=n)`` for the independent and Sobol samplers) but
     compiles one pass of ``pass_spp`` samples and reuses it for every level. Returns
     ``(rows, compile_seconds)``; each row has ``spp``, ``seconds`` (cumulative render time,
@@ -144,8 +144,8 @@ def reference(name: str, width: int, height: int, spp: int, refresh: bool = Fals
     stored as ``benchmarks/.cache/jaxrt_<name>_<W>x<H>_<spp>spp.exr`` with the per-pixel
     standard error in the extra layer ``stderr``.
     """
-    from jaxrt.io import read_exr, write_exr
-    from jaxrt.scenes import by_name
+    from jaxrt.scene.builtin import by_name
+    from jaxrt.scene.images import read_exr, write_exr
 
     path = CACHE_DIR / f"jaxrt_{name}_{width}x{height}_{spp}spp.exr"
     if path.exists() and not refresh:
@@ -175,7 +175,7 @@ def errors(image, ref, ref_stderr) -> dict:
 def study(scenes, estimators, width: int, height: int, levels=LEVELS, ref_spp: int = 1024,
           sampler: str = "independent", log=print) -> list[dict]:
     """Rows (scene, estimator, spp, seconds, rmse, mse, rel_mse, efficiency, compile_s)."""
-    from jaxrt.scenes import by_name
+    from jaxrt.scene.builtin import by_name
 
     out = []
     for name in scenes:
@@ -315,11 +315,12 @@ def profile_jaxrt(size: int = 256, repeats: int = 3) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from jaxrt import lights as lt
-    from jaxrt.camera import generate_ray
-    from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
-    from jaxrt.scene import intersect, unoccluded
-    from jaxrt.scenes import cornell_box
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.integrators.techniques import camera_sample
+    from jaxrt.scene import lights as lt
+    from jaxrt.scene.builtin import cornell_box
+    from jaxrt.scene.camera import generate_ray
+    from jaxrt.scene.queries import intersect, unoccluded
 
     est = make_estimator("mis")
     scene = cornell_box(size, size)
@@ -374,7 +375,7 @@ def profile_jaxrt(size: int = 256, repeats: int = 3) -> dict:
 
 def _light_centre():
     """A point 1 mm below the centre of the box's light quad (target of the shadow rays)."""
-    from jaxrt.scenes import cornell
+    from jaxrt.scene.builtin import cornell
 
     meshes = cornell.cornell_meshes()
     light = next(m for m in meshes if m.emission is not None)
@@ -402,8 +403,8 @@ def level_renderer(scene, estimator: str, levels, sampler: str = "independent",
     """One render of ``n`` spp from scratch for every ``n`` in ``levels``, compiled up front.
 
     Returns ``(render, compile_seconds)``; ``render(n)`` runs ONE pass of ``n`` samples per
-    pixel (jaxrt's :class:`~jaxrt.passes.RenderPass`, as ``render(scene, spp=n)`` runs it when
-    ``n`` fits one pass) and returns ``(image, stderr)``, (H, W, 3) float64. The image equals
+    pixel (jaxrt's :class:`~jaxrt.rendering.passes.RenderPass`, as ``render(scene, spp=n)`` runs it
+    when ``n`` fits one pass) and returns ``(image, stderr)``, (H, W, 3) float64. The image equals
     :func:`progressive`'s level ``n`` bit for bit (a pass's split never changes the sums).
     This is how a Mitsuba render of ``n`` spp is timed, so the two error-vs-time tables compare
     renders with renders (a progressive run pays each level's pass on top of the earlier ones).
@@ -461,7 +462,7 @@ def mitsuba_comparison(levels=(1, 2, 4, 8, 16), mitsuba_spps=(1, 2, 4, 8, 16, 32
     sys.path.insert(0, str(HERE))
     import mitsuba_cornell as mc
 
-    from jaxrt.scenes import cornell_box
+    from jaxrt.scene.builtin import cornell_box
 
     res = {"machine": machine_description(), "size": size, "ref_spp": ref_spp,
            "rounds": rounds}
@@ -581,7 +582,7 @@ def mitsuba_markdown(res: dict) -> str:
                          f"{row['efficiency']:.3g} |")
     lines += ["", "Time to reach the same RMSE (log-log interpolation, "
               "`mitsuba_cornell.time_to_rmse`), jaxrt ÷ Mitsuba per wall second and per "
-              "CPU-second (issue 10's target: Sobol ≤ 0.5× at RMSE 0.03):", "",
+              "CPU-second (the target: Sobol ≤ 0.5× at RMSE 0.03):", "",
               "| RMSE | Mitsuba s | jaxrt independent s | ratio (CPU) | jaxrt sobol s | "
               "ratio (CPU) |", "|---:|---:|---:|---:|---:|---:|"]
     for target, e in r["time_to_rmse"].items():
@@ -639,8 +640,8 @@ def main(argv=None) -> int:
         write_section("mitsuba", mitsuba_markdown(res))
         return 0
 
-    from jaxrt.estimators import DIRECT_ESTIMATORS
-    from jaxrt.scenes import BUILTIN
+    from jaxrt.integrators.config import DIRECT_ESTIMATORS
+    from jaxrt.scene.builtin import BUILTIN
 
     machine = machine_description()
     print(f"machine: {machine}")

@@ -23,8 +23,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).parent))
 from test_bench_intersect import _mesh, _rays  # noqa: E402
 
-from jaxrt.accel import AUTO_BVH_THRESHOLD, build_geometry  # noqa: E402
-from jaxrt.intersect import any_hit, closest_hit  # noqa: E402
+from jaxrt.geometry.accel import AUTO_BVH_THRESHOLD, build_geometry  # noqa: E402
+from jaxrt.geometry.triangle import any_hit, closest_hit  # noqa: E402
 
 ROUNDS = 5
 

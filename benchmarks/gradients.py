@@ -6,18 +6,18 @@
     python benchmarks/gradients.py zscores    # z of every analytic derivative check, ~2 min
 
 memory: peak resident set (``ru_maxrss``) of a fresh process that computes the gradient of
-an L2 loss w.r.t. every :func:`jaxrt.differentiable.scene_params` of the 64² Cornell box
+an L2 loss w.r.t. every :func:`jaxrt.rendering.differentiable.scene_params` of the 64² Cornell box
 (the loss's cotangent from a 4-spp image), (a) by :func:`jaxrt.image_vjp` in its default
 passes (render's size: all ≤ 256 spp in one pass at 64²),
 (b) by one ``jax.vjp`` of :func:`jaxrt.estimate_image` (the whole sample loop taped), at
 16 … 256 spp. A process that only renders the image (``spp`` samples) sets the baseline.
 
 zscores: the table of z = (estimate − reference) / standard error of every derivative check
-against a closed form or a float64 quadrature in ``tests/test_differentiable.py`` (the same
-functions, seeds and sample counts the tests use), parameter × estimator.
+against a closed form or a float64 quadrature in ``tests/rendering/test_differentiable.py`` (the
+same functions, seeds and sample counts the tests use), parameter × estimator.
 
-cost: one derivative pass (:func:`jaxrt.differentiable._vjp_pass`) against one primal pass of
-the same samples (the program ``render`` runs, with its compiler options), Cornell box, MIS,
+cost: one derivative pass (:func:`jaxrt.rendering.differentiable._vjp_pass`) against one primal pass
+of the same samples (the program ``render`` runs, with its compiler options), Cornell box, MIS,
 64² at 4 spp and 256² at 1 spp (image_vjp's default pass there); both compiled first, then
 timed alternately (A B B A …) for 10 rounds, wall and process CPU time per round; ratios per
 round (median and range), the machine's load before and after.
@@ -38,8 +38,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxrt
-from jaxrt import scenes
-from jaxrt.differentiable import (
+from jaxrt.core.xla import compiler_options
+from jaxrt.integrators.config import make_estimator, prepare_scene
+from jaxrt.rendering.differentiable import (
     _image_sums,
     _vjp_pass,
     estimate_image,
@@ -47,7 +48,7 @@ from jaxrt.differentiable import (
     scene_params,
     with_params,
 )
-from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
+from jaxrt.scene import builtin as scenes
 
 
 def _maxrss_mb() -> float:
@@ -142,7 +143,7 @@ def zscores() -> None:
     sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
     import test_differentiable as td
 
-    from jaxrt.estimators import ESTIMATORS
+    from jaxrt.integrators.config import ESTIMATORS
 
     cols = {e: {} for e in ESTIMATORS}
     t0 = time.perf_counter()

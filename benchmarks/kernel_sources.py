@@ -3,7 +3,7 @@
     python benchmarks/kernel_sources.py [--estimator path] [--spp 8] [--top 25]
     python benchmarks/kernel_sources.py --estimator mis --spp 32 --compile   # compile, by line
 
-Compiles the real render pass (:class:`jaxrt.passes.RenderPass`, 256² Cornell box, the
+Compiles the real render pass (:class:`jaxrt.rendering.passes.RenderPass`, 256² Cornell box, the
 independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
 time to the source line of its root operation (the optimised HLO's ``stack_frame_id``
 tables), innermost frame first, beside the number of kernels of that line and how many of
@@ -13,12 +13,13 @@ holds, and each distinct kernel costs ~20–40 ms of CPU to compile: benchmarks/
 operations (``sin``, ``cos``, ``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source
 line appears in more than one kernel: XLA:CPU fuses a cheap elementwise producer into every
 consumer, so such a value is computed once per kernel that reads it (and once per element of
-a (…, 3) output); :func:`jaxrt.vecmath.computed_once` stores it. Each compaction stage of
+a (…, 3) output); :func:`jaxrt.core.vecmath.computed_once` stores it. Each compaction stage of
 the path pass is a copy of its step, so there every line shows up once per stage; and one
 line of the sampler's hash serves every random dimension, so its count is mostly distinct
 values.
 
-This is how the ``computed_once`` change was found (benchmarks/README.md, "fifth session").
+It shows where :func:`~jaxrt.core.vecmath.computed_once` pays (benchmarks/README.md, "fifth
+session").
 
 ``--compile`` charges the *compile* instead: the pass is compiled in a fresh process with
 XLA's log on (``TF_CPP_VMODULE``), and the MLIR and LLVM seconds XLA reports for each kernel
@@ -39,9 +40,9 @@ import tempfile
 import jax
 from profile_render import _trace_events  # this directory's profiler: one traced run
 
-from jaxrt.estimators import make_estimator, prepare_scene
-from jaxrt.passes import RenderPass
-from jaxrt.scenes import cornell_box
+from jaxrt.integrators.config import make_estimator, prepare_scene
+from jaxrt.rendering.passes import RenderPass
+from jaxrt.scene.builtin import cornell_box
 
 COSTLY = ("sine", "cosine", "rsqrt", "sqrt", "divide", "log", "exponential", "atan2", "xor")
 

@@ -1,6 +1,6 @@
 """The Cornell box rendered by Mitsuba 3 from jaxrt's own arrays, for side-by-side benchmarks.
 
-The scene is made from :func:`jaxrt.scenes.cornell.cornell_meshes` (the very vertex and face
+The scene is made from :func:`jaxrt.scene.builtin.cornell.cornell_meshes` (the very vertex and face
 arrays jaxrt renders, so the geometry can never drift) and its camera constants:
 
 - every mesh becomes an ``mi.Mesh`` whose ``vertex_positions``/``faces`` buffers are set from
@@ -101,13 +101,16 @@ def import_mitsuba(variant: str = DEFAULT_VARIANT):
 
 
 def _cornell():
-    from jaxrt.scenes import cornell  # lazy: the benchmark module imports without jaxrt's scene
+    from jaxrt.scene.builtin import (
+        cornell,  # lazy: the benchmark module imports without jaxrt's scene
+    )
 
     return cornell
 
 
 def _mi_mesh(mi, m):
-    """One ``jaxrt.scene.Mesh`` (diffuse material, optional emission) as an ``mi.Mesh``."""
+    """One ``jaxrt.scene.container.Mesh`` (diffuse material, optional emission) as an
+    ``mi.Mesh``."""
     kind = int(np.asarray(m.material.kind))
     if kind != 0:
         raise ValueError(f"mesh {m.name!r}: only diffuse materials (kind 0) are translated, "
@@ -306,7 +309,7 @@ def mitsuba_reference_with_error(spp_per_pass: int = 64, passes: int = 64, width
     √passes (Mitsuba reports no error of its own). Cached as two EXRs under
     ``benchmarks/.cache/`` (``…_mean.exr``, ``…_stderr.exr``).
     """
-    from jaxrt.io import read_exr, write_exr
+    from jaxrt.scene.images import read_exr, write_exr
 
     spp = int(spp_per_pass) * int(passes)
     paths = [reference_path(spp, int(width), int(height), variant, integrator,
@@ -330,11 +333,11 @@ def mitsuba_reference(spp: int = 4096, width: int = 256, height: int = 256,
 
     Rendered once in passes of 256 spp with seeds ``REFERENCE_SEED + k`` (disjoint from the
     benchmark renders' seeds) and stored under ``benchmarks/.cache/`` (written atomically by
-    :func:`jaxrt.io.write_exr`); later calls read the file. Its own noise is that of
+    :func:`jaxrt.scene.images.write_exr`); later calls read the file. Its own noise is that of
     ``spp`` samples: an image at n spp compared with it has
     ``MSE_measured ≈ MSE_true(n) · (1 + n/spp)``.
     """
-    from jaxrt.io import read_exr, write_exr
+    from jaxrt.scene.images import read_exr, write_exr
 
     path = reference_path(int(spp), int(width), int(height), variant)
     if path.exists() and not refresh:
@@ -400,15 +403,14 @@ def time_to_rmse(rows: list[dict], target_rmse: float) -> float:
 def _primary_hits(width: int, height: int):
     """Mesh index hit by the ray through each pixel centre (jaxrt's camera), −1 on a miss.
 
-    Rays come from :func:`jaxrt.camera.generate_ray` at ``u = (½, ½)``; intersection is a
+    Rays come from :func:`jaxrt.scene.camera.generate_ray` at ``u = (½, ½)``; intersection is a
     plain numpy Möller–Trumbore against all triangles of ``cornell_meshes()``. Returns
     ``(mesh_index (H, W) int32, hit points (H, W, 3), meshes)``.
     """
     import jax
     import jax.numpy as jnp
 
-    from jaxrt import camera as cm
-
+    from jaxrt.scene import camera as cm
     cb = _cornell()
     meshes = cb.cornell_meshes()
     cam = cb.cornell_camera(width, height)

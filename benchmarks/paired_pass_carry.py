@@ -1,16 +1,17 @@
-"""Cost of carrying the sums through the passes (issue 11): main's pass against this tree's.
+"""Cost of carrying the sums through the passes: another checkout's pass against this tree's.
 
     python benchmarks/paired_pass_carry.py [--main /work/main] [--spp 32] [--rounds 8]
     python benchmarks/paired_pass_carry.py --end-to-end [--rounds 4]
 
-Loads ``jaxrt/passes.py`` of another checkout (``--main``: float32 sums from zero in every
-pass, returned to the host) beside this tree's (a double-float32 TwoSum chain carried from
-pass to pass), compiles both for the 256² Cornell box (MIS, one device, the default 32 spp
-per pass), and times passes in interleaved rounds (A B, B A, …) in this process: per wall
-second and per CPU-second of the process (``time.process_time``), with the load from
-``os.getloadavg`` before and after. ``--end-to-end`` runs the two ``jaxrt.render`` drivers
-instead (the other checkout's ``render.py`` on its own ``passes.py``), 256 spp in the default
-passes of 32, and times passes 2 … 8 of each render (the first pass and the compile apart).
+Loads ``jaxrt/rendering/passes.py`` of another checkout (``--main``: one whose pass sums
+float32 from zero in every pass, returned to the host) beside this tree's (a double-float32
+TwoSum chain carried from pass to pass), compiles both for the 256² Cornell box (MIS, one
+device, the default 32 spp per pass), and times passes in interleaved rounds (A B, B A, …)
+in this process: per wall second and per CPU-second of the process (``time.process_time``),
+with the load from ``os.getloadavg`` before and after. ``--end-to-end`` runs the two
+``jaxrt.render`` drivers instead (the other checkout's ``driver.py`` on its own
+``passes.py``), 256 spp in the default passes of 32, and times passes 2 … 8 of each render
+(the first pass and the compile apart).
 """
 
 from __future__ import annotations
@@ -28,33 +29,37 @@ SIZE = 256
 
 
 def load_passes(checkout: Path):
-    """``jaxrt/passes.py`` of ``checkout`` as a module of its own (the rest from this tree)."""
-    spec = importlib.util.spec_from_file_location("passes_other", checkout / "jaxrt/passes.py")
+    """``jaxrt/rendering/passes.py`` of ``checkout`` as a module of its own (the rest from this
+    tree)."""
+    spec = importlib.util.spec_from_file_location("passes_other",
+                                                  checkout / "jaxrt/rendering/passes.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 def load_render(checkout: Path, passes):
-    """``jaxrt/render.py`` of ``checkout``, importing ``passes`` as its ``jaxrt.passes``."""
-    saved = sys.modules["jaxrt.passes"]
-    sys.modules["jaxrt.passes"] = passes
+    """``jaxrt/rendering/driver.py`` of ``checkout``, importing ``passes`` as its
+    ``jaxrt.rendering.passes``."""
+    saved = sys.modules["jaxrt.rendering.passes"]
+    sys.modules["jaxrt.rendering.passes"] = passes
     try:
-        spec = importlib.util.spec_from_file_location("render_other", checkout / "jaxrt/render.py")
+        spec = importlib.util.spec_from_file_location("render_other",
+                                                      checkout / "jaxrt/rendering/driver.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     finally:
-        sys.modules["jaxrt.passes"] = saved
+        sys.modules["jaxrt.rendering.passes"] = saved
     return module
 
 
 def end_to_end(checkout: Path, rounds: int) -> None:
     """Interleaved ``render(..., spp=256)`` of both drivers; passes 2 … 8 timed."""
-    import jaxrt.render  # noqa: F401
-    from jaxrt.scenes import cornell_box
+    import jaxrt.rendering.driver  # noqa: F401
+    from jaxrt.scene.builtin import cornell_box
 
     renders = {"old": load_render(checkout, load_passes(checkout)).render,
-               "new": sys.modules["jaxrt.render"].render}
+               "new": sys.modules["jaxrt.rendering.driver"].render}
     scene = cornell_box(SIZE, SIZE)
     times = {"old": [], "new": []}
     load_start = os.getloadavg()
@@ -93,9 +98,9 @@ def main(argv=None) -> int:
 
     import jax
 
-    from jaxrt import passes as new
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.scenes import cornell_box
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.rendering import passes as new
+    from jaxrt.scene.builtin import cornell_box
 
     old = load_passes(a.main)
     est = make_estimator("mis")

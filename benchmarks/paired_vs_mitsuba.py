@@ -6,7 +6,7 @@ Both renderers run in this process, in interleaved rounds (j m, m j, j m, …), 
 the machine's load hits both. Each round is timed in wall seconds and in this process's CPU
 seconds (``time.process_time``: every thread of the process), so the report gives samples per
 wall second, samples per CPU-second and the cores each renderer kept busy. jaxrt runs its real
-render pass (:class:`jaxrt.passes.RenderPass`, the program ``render`` runs); Mitsuba its
+render pass (:class:`jaxrt.rendering.passes.RenderPass`, the program ``render`` runs); Mitsuba its
 ``direct`` integrator (``llvm_ad_rgb``, box filter; ``mitsuba_cornell.py``), or with
 ``--estimator path`` jaxrt's path tracer against Mitsuba's ``path`` integrator (both
 unbounded, Russian roulette from depth 5). Also reported:
@@ -33,8 +33,8 @@ SIZE = 256
 FIRST_FRAME = """
 import time, sys
 t0 = time.perf_counter()
-from jaxrt import scenes
-from jaxrt.render import render
+from jaxrt.scene import builtin as scenes
+from jaxrt.rendering.driver import render
 r = render(scenes.cornell_box(256, 256), "mis", spp=64, seed=0, progress=False)
 r.image.sum()
 print(time.perf_counter() - t0, r.timings["compile"])
@@ -71,9 +71,9 @@ def paired(spp: int = 32, rounds: int = 4, log=print, estimator: str = "mis") ->
     sys.path.insert(0, str(HERE))
     import mitsuba_cornell as mc
 
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import RenderPass
-    from jaxrt.scenes import cornell_box
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.rendering.passes import RenderPass
+    from jaxrt.scene.builtin import cornell_box
 
     est = make_estimator(estimator)
     scene = prepare_scene(cornell_box(SIZE, SIZE), est)

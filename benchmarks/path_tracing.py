@@ -53,7 +53,7 @@ def mitsuba_path_reference(spp: int = REFERENCE_SPP, width: int = SIZE,
                            height: int = SIZE) -> np.ndarray:
     """Mitsuba's converged path-traced box, cached under ``benchmarks/.cache`` as an EXR
     (passes of 256 spp, seeds from ``mc.REFERENCE_SEED``, averaged in float64)."""
-    from jaxrt.io import read_exr, write_exr
+    from jaxrt.scene.images import read_exr, write_exr
 
     path = mc.CACHE_DIR / f"mitsuba_cornell_path_{width}x{height}_{spp}spp.exr"
     if path.exists():
@@ -76,7 +76,7 @@ def paired_rows(reference: np.ndarray, direct_reference: np.ndarray, levels=LEVE
     (``convergence.paired_level_times``); and jaxrt's compile seconds (path)."""
     from convergence import level_renderer, paired_level_times
 
-    from jaxrt.scenes import cornell_box
+    from jaxrt.scene.builtin import cornell_box
 
     mi, scene = mitsuba_path_scene(reference.shape[1], reference.shape[0])
     box = cornell_box(reference.shape[1], reference.shape[0])
@@ -147,9 +147,9 @@ def _plot(jx: list[dict], mt: list[dict], jd: list[dict], out: Path) -> None:
 def indirect(spp: int = 256, out: Path = HERE.parent / "docs" / "images" /
              "cornell_direct_vs_path.png") -> dict:
     """Direct vs global illumination of the box: region means and a three-panel figure."""
-    from jaxrt.io import _tonemap_to_8bit
-    from jaxrt.render import render
-    from jaxrt.scenes import cornell_box
+    from jaxrt.rendering.driver import render
+    from jaxrt.scene.builtin import cornell_box
+    from jaxrt.scene.images import _tonemap_to_8bit
 
     scene = cornell_box(SIZE, SIZE)
     direct = render(scene, "mis", spp=spp, seed=1, progress=False)

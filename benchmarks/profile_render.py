@@ -3,32 +3,31 @@
     python benchmarks/profile_render.py            # ~2 min on the 2-core machine
     python benchmarks/profile_render.py --trace    # also the per-kernel XLA:CPU trace
 
-Every stage is measured *inside the render*: ``jaxrt.passes.render_tiles`` (256×256
+Every stage is measured *inside the render*: ``jaxrt.rendering.passes.render_tiles`` (256×256
 ``cornell_box``, a pass of :data:`SPP` samples per pixel as ``render`` runs them, 256-pixel
 tiles × 64 per ``lax.map`` step, i.e. 16 384 lanes) is compiled once per level with the
 pass's two halves of a sample (``camera_hit``, run one sample ahead, and
 ``camera_radiance``) replaced by the same functions stopped after one more stage. Each
 level's output depends on everything it computed, so XLA cannot drop it. The stages are the
 real pass's own functions (the camera hit by the eye's planes, the shadow ray against the
-occluders and blocks, the BSDF ray against emitters and occluders: ``jaxrt.terms``), and the
-last level is the real pass. The cost of a stage is the difference between consecutive
+occluders and blocks, the BSDF ray against emitters and occluders: ``jaxrt.integrators.terms``), and
+the last level is the real pass. The cost of a stage is the difference between consecutive
 levels in CPU-seconds, taken per round (levels alternate in every round, paired) and
 reported as the median; the stages add up to the full render by construction. Per CPU-second,
 because XLA:CPU runs independent kernels (the next sample's camera loop beside this one's
 shading) on its two threads: a level's wall time is not the sum of its stages' work.
 
-A truncated level is a different program, and XLA:CPU may fuse it differently: on
-2026-12-05 (AMD family 25) level 3 read 0.231 CPU-µs per sample against 0.171 for the whole
-pass, because XLA fused the level's sum into the kernel that forms the camera hit's point, a
-(N, 3) output in transposed layout whose three elements each recompute its 139 operations
-(159 of the level's 328 ms of kernels; that kernel takes 14 ms in the real pass), and the
-shadow ray's stage then read −0.134. So read a stage's cost as a hint and check it against
+A truncated level is a different program, and XLA:CPU may fuse it differently: a level can
+read more CPU time per sample than the whole pass when XLA fuses the level's sum into the
+kernel that forms the camera hit's point, a (N, 3) output in transposed layout whose three
+elements each recompute all of its operations, and the next stage then reads a negative
+cost. So read a stage's cost as a hint and check it against
 the kernel-scope table below, which charges the real pass's own kernels.
 Levels:
 
 0. nothing — the same tiles, lax.map, pipelined sample loop and running sums around a
    constant sample
-1. sample stream — the dimensions one MIS sample draws (``jaxrt.sampler``)
+1. sample stream — the dimensions one MIS sample draws (``jaxrt.sampling.sampler``)
 2. camera ray — ``terms.camera_ray``
 3. camera hit — ``estimators.camera_hit`` (closest hit by the eye's planes, found one sample
    ahead) and the shading point (normal, local ``wo``, material)
@@ -62,15 +61,16 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-import jaxrt.estimators as est_mod
-import jaxrt.passes as ps
-import jaxrt.terms as terms_mod
-from jaxrt import lights as lt
-from jaxrt import materials as mt
-from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
-from jaxrt.render import render
-from jaxrt.scenes import cornell_box
-from jaxrt.vecmath import to_local
+import jaxrt.integrators.direct as est_mod
+import jaxrt.integrators.terms as terms_mod
+import jaxrt.rendering.passes as ps
+from jaxrt.core.vecmath import to_local
+from jaxrt.core.xla import compiler_options
+from jaxrt.integrators.config import make_estimator, prepare_scene
+from jaxrt.rendering.driver import render
+from jaxrt.scene import lights as lt
+from jaxrt.scene import materials as mt
+from jaxrt.scene.builtin import cornell_box
 
 SIZE = 256
 SPP = 32  # samples per pixel of the profiled pass: render's pass for a 256² image at 64 spp

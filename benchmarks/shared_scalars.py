@@ -3,8 +3,8 @@
     python benchmarks/shared_scalars.py [--lanes 16384] [--rounds 30]
 
 The step a path tracer takes after a BSDF sample, for ``--lanes`` lanes under ``vmap``:
-jaxrt's cosine-weighted warp of two hashed uniforms (``jaxrt.sampler``; ``sin``/``cos`` of
-the concentric map), its frame change to world space (``jaxrt.vecmath``), the side of the
+jaxrt's cosine-weighted warp of two hashed uniforms (``jaxrt.sampling.sampler``; ``sin``/``cos`` of
+the concentric map), its frame change to world space (``jaxrt.core.vecmath``), the side of the
 spawn offset (a dot product with the normal) and the select of the continuing segment
 against a regenerated camera ray. Three ways to write the same step:
 
@@ -28,9 +28,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxrt import sampler, warp
-from jaxrt.estimators import compiler_options
-from jaxrt.vecmath import coordinate_system, to_world
+from jaxrt.core.vecmath import coordinate_system, to_world
+from jaxrt.core.xla import compiler_options
+from jaxrt.sampling import sampler, warp
 
 
 def _local_direction(i):

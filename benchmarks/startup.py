@@ -14,7 +14,7 @@ Every figure comes from a fresh interpreter (``subprocess``), as a user meets it
   compile seconds it prints (the second reads its pass from jaxrt's program cache);
 - **compile per estimator**: trace, lower and XLA compile of the 256² pass (32 spp per pass,
   as ``render`` picks for 64 spp), each estimator in its own process, wall and CPU seconds;
-  and the same pass read from :mod:`jaxrt.program_cache` by a second process;
+  and the same pass read from :mod:`jaxrt.rendering.program_cache` by a second process;
 - **phases** of the first frame, in a fresh process that runs what ``render`` runs step by
   step: imports, scene, trace, lower, XLA (split by XLA's own log into its HLO passes, on one
   thread, and its kernel modules, compiled on its worker threads: their count and summed
@@ -46,8 +46,8 @@ ESTIMATORS = ("mis", "mis_one_sample", "light_solid_angle", "light_area", "bsdf"
 FIRST_FRAME = """
 import sys, time
 t0 = time.perf_counter()
-from jaxrt import scenes
-from jaxrt.render import render
+from jaxrt.scene import builtin as scenes
+from jaxrt.rendering.driver import render
 r = render(scenes.cornell_box(256, 256, accel=sys.argv[1]), "mis", spp=64, seed=0,
            progress=False)
 r.image.sum()
@@ -57,10 +57,11 @@ print(time.perf_counter() - t0, r.timings["compile"])
 COMPILE = """
 import sys, time
 import jax, jax.numpy as jnp
-from jaxrt import scenes
-import jaxrt.passes as ps
-from jaxrt.estimators import compiler_options, make_estimator, prepare_scene
-from jaxrt.render import default_spp_per_pass
+from jaxrt.scene import builtin as scenes
+import jaxrt.rendering.passes as ps
+from jaxrt.core.xla import compiler_options
+from jaxrt.integrators.config import make_estimator, prepare_scene
+from jaxrt.rendering.driver import default_spp_per_pass
 est = make_estimator(sys.argv[1])
 scene = prepare_scene(scenes.cornell_box(256, 256), est)
 run = ps.RenderPass(scene, 0, jax.local_devices()[:1], 256, est=est, sampler="independent",
@@ -92,9 +93,10 @@ clock = lambda: (time.perf_counter(), time.process_time())
 t = [clock()]
 import jax
 t.append(clock())
-from jaxrt import scenes
-import jaxrt.passes as ps
-from jaxrt.estimators import compiler_options_soon, make_estimator, prepare_scene
+from jaxrt.scene import builtin as scenes
+import jaxrt.rendering.passes as ps
+from jaxrt.core.xla import compiler_options_soon
+from jaxrt.integrators.config import make_estimator, prepare_scene
 t.append(clock())
 est = make_estimator("mis")
 options = compiler_options_soon()
@@ -121,10 +123,11 @@ PHASE_NAMES = ("import jax", "import jaxrt", "scene", "trace", "lower", "XLA", "
 CACHED = """
 import sys, time
 import jax
-from jaxrt import program_cache, scenes
-from jaxrt.estimators import make_estimator, prepare_scene
-from jaxrt.passes import RenderPass
-from jaxrt.render import default_spp_per_pass
+from jaxrt.rendering import program_cache
+from jaxrt.scene import builtin as scenes
+from jaxrt.integrators.config import make_estimator, prepare_scene
+from jaxrt.rendering.passes import RenderPass
+from jaxrt.rendering.driver import default_spp_per_pass
 program_cache.set_directory(sys.argv[2])
 est = make_estimator(sys.argv[1])
 scene = prepare_scene(scenes.cornell_box(256, 256), est)
@@ -172,8 +175,8 @@ def _load() -> str:
 
 def _python_speed() -> str:
     """Seconds this machine takes for a 10⁷-step pure-Python loop (best of three), printed
-    beside the figures: the same VM kind ran it in 0.6 s one day and 2.4–3.0 s another with
-    no steal and no load, and every start-up figure (tracing is Python) moved with it."""
+    beside the figures: on one VM kind it can take 4–5× as long from one day to another with
+    no steal and no load, and every start-up figure (tracing is Python) moves with it."""
     import time
 
     best = float("inf")
@@ -251,7 +254,7 @@ def second_run(repeat: int = 3) -> dict:
     walls, compiles, firsts, cpus = [], [], [], []
     for _ in range(repeat):
         with tempfile.TemporaryDirectory() as tmp:
-            argv = [sys.executable, "-m", "jaxrt.cli", "render", "--width", "16", "--height",
+            argv = [sys.executable, "-m", "jaxrt", "render", "--width", "16", "--height",
                     "16", "--spp", "16", "-q", "-o", os.path.join(tmp, "out.exr")]
             env = _env(XDG_CACHE_HOME=os.path.join(tmp, "cache"))
             env.pop("JAXRT_NO_COMPILE_CACHE", None)

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxrt.bvh import build_bvh
-from jaxrt.estimators import compiler_options
-from jaxrt.intersect import any_hit, closest_hit, triangle_set
+from jaxrt.core.xla import compiler_options
+from jaxrt.geometry.bvh import build_bvh
+from jaxrt.geometry.triangle import any_hit, closest_hit, triangle_set
 
 try:
     import embreex.mesh_construction as embree_mesh
@@ -80,7 +80,7 @@ def _geometry(name, accel):
 def _query_fn(query):
     """The per-ray query vmapped over the batch, as the renderer calls it (either accel).
 
-    Closest hit returns the whole Hit (t, prim, barycentrics, normal), as Embree does."""
+    Closest hit returns the whole TriangleHit (t, prim, barycentrics, normal), as Embree does."""
     return jax.vmap(closest_hit if query == "closest" else any_hit, (None, 0, 0, 0))
 
 

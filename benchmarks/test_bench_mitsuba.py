@@ -39,7 +39,7 @@ def small_render(mi):
 
 
 def test_geometry_and_emission_are_jaxrt_arrays(mi):
-    from jaxrt.scenes import cornell
+    from jaxrt.scene.builtin import cornell
 
     scene = mc.load_cornell(SMALL, SMALL)
     shapes = {s.id(): s for s in scene.shapes()}
@@ -79,7 +79,7 @@ def test_orientation_matches_jaxrt_camera(small_render):
 
 def test_light_pixels_show_its_radiance(mi):
     """Pixels inside the light's image see it at every sample: exactly its radiance."""
-    from jaxrt.scenes import cornell
+    from jaxrt.scene.builtin import cornell
 
     img, _ = mc.render_mitsuba(1, seed=1)  # 256²: the light is only ~2 rows tall at 64²
     light = mc.cornell_region_masks(256, 256)["light"]
@@ -90,7 +90,8 @@ def test_light_pixels_show_its_radiance(mi):
 
 
 def test_floor_radiance_matches_lambert_oracle(small_render):
-    """Unshadowed floor pixels against ρ/π · L · Φ (Lambert's polygon formula, jaxrt.analytic).
+    """Unshadowed floor pixels against ρ/π · L · Φ (Lambert's polygon formula,
+    jaxrt.validation.analytic).
 
     Catches a wrong radiance, reflectance, fov or light placement: each changes the floor
     radiance by far more than the bound.
@@ -98,8 +99,8 @@ def test_floor_radiance_matches_lambert_oracle(small_render):
     import jax
     import jax.numpy as jnp
 
-    from jaxrt import analytic
-    from jaxrt.scenes import cornell
+    from jaxrt.scene.builtin import cornell
+    from jaxrt.validation import analytic
 
     img, masks = small_render
     index, points, meshes = mc._primary_hits(SMALL, SMALL)

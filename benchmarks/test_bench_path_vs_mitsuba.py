@@ -1,4 +1,4 @@
-"""jaxrt's path tracer against Mitsuba 3's ``path`` integrator on the same Cornell box (issue 13).
+"""jaxrt's path tracer against Mitsuba 3's ``path`` integrator on the same Cornell box.
 
 Run: ``DRJIT_LIBLLVM_PATH=libLLVM-19.so pytest benchmarks/test_bench_path_vs_mitsuba.py -s``.
 
@@ -50,7 +50,7 @@ def images():
     except ImportError as e:
         pytest.skip(f"Mitsuba's {mc.DEFAULT_VARIANT} variant is unusable: {e}")
     import jaxrt
-    from jaxrt.scenes import cornell_box
+    from jaxrt.scene.builtin import cornell_box
 
     m_img, m_se = mc.mitsuba_reference_with_error(MI_PASS_SPP, MI_PASSES, SIZE, SIZE,
                                                   integrator=mc.PATH_INTEGRATOR)

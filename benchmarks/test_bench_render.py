@@ -17,7 +17,7 @@ rounds; ``samples_per_s_best``), ``compile_s`` (the first ``render`` call's
 ``speed_vs_baseline`` (its samples/s over the baseline's, rendered alternately in the same
 rounds: the figure to trust on a loaded machine) and the case.
 
-"Model only what the scene needs" (issue 6, item 4) is measured as *paired* ratios (the two
+"Model only what the scene needs" is measured as *paired* ratios (the two
 variants alternate within each round, so machine load hits both alike):
 diffuse-only vs the same box with every BSDF kind compiled in (unused materials; the image
 must not change), brute force vs BVH over subdivided boxes (36 → 2 k triangles), and a point
@@ -38,12 +38,12 @@ import jax
 import numpy as np
 import pytest
 
-from jaxrt import lights as lt
-from jaxrt import materials as mt
-from jaxrt.estimators import ESTIMATORS
-from jaxrt.render import render
-from jaxrt.scene import build_scene, mesh
-from jaxrt.scenes import BUILTIN, by_name, cornell
+from jaxrt.integrators.config import ESTIMATORS
+from jaxrt.rendering.driver import render
+from jaxrt.scene import lights as lt
+from jaxrt.scene import materials as mt
+from jaxrt.scene.builtin import BUILTIN, by_name, cornell
+from jaxrt.scene.container import build_scene, mesh
 
 FULL = os.environ.get("JAXRT_BENCH_FULL", "") not in ("", "0")
 ROUNDS = 3
@@ -154,8 +154,8 @@ def test_bench_tile_size(benchmark, tile_size):
 
 _TWO_DEVICES = textwrap.dedent("""
     import json, time, numpy as np, jax
-    from jaxrt.render import render
-    from jaxrt.scenes import cornell_box
+    from jaxrt.rendering.driver import render
+    from jaxrt.scene.builtin import cornell_box
     assert len(jax.devices()) == 2, jax.devices()
     scene = cornell_box({size}, {size})
     out = {{}}
@@ -307,8 +307,8 @@ def _one_sample_ratio(benchmark, estimator: str, longer: int, spp_total: int) ->
     returns the CPU-time ratio."""
     import time
 
-    from jaxrt.estimators import make_estimator, prepare_scene
-    from jaxrt.passes import RenderPass
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.rendering.passes import RenderPass
 
     est = make_estimator(estimator)
     scene = prepare_scene(cornell.cornell_box(256, 256), est)
@@ -346,10 +346,10 @@ def _one_sample_ratio(benchmark, estimator: str, longer: int, spp_total: int) ->
 def test_bench_one_sample_pass(benchmark, estimator):
     """Per-sample time of a 1-spp pass against a 4-spp pass (256² Cornell box, the real pass,
     alternating rounds). ``render`` runs 1 spp per pass above 2^20 pixels (~1 megapixel)
-    (``default_spp_per_pass``): there XLA inlines the sample loop, and before the twenty-fifth
-    session the MIS value was fused into each of the fold's kernels and computed in each, 3-5x
-    the per-sample time of a longer pass (a 1920x1080 MIS render at 8 spp: 12.1-12.3 CPU-s,
-    now 4.4-5.6). Fails when a 1-spp pass takes above 2x a 4-spp pass's CPU time per sample (a
+    (``default_spp_per_pass``): there XLA inlines the sample loop, and unless the pass
+    stores the sample (``jaxrt.rendering.passes.lane_sums``) the MIS value is fused into each
+    of the fold's kernels and computed in each, 3-5x the per-sample time of a longer pass.
+    Fails when a 1-spp pass takes above 2x a 4-spp pass's CPU time per sample (a
     pass of one sample also pays the prologue's camera hit and the step's slices of the sums
     once per sample); the wall-time ratio is recorded beside it."""
     ratio = _one_sample_ratio(benchmark, estimator, 4, 64)
@@ -362,11 +362,10 @@ def test_bench_path_one_sample_pass(benchmark):
     unbounded paths, the real pass, alternating rounds), in a render long enough (2 048
     spp: 1.3·10⁸ samples) for ``path.compactions`` to compact a 1-spp pass's lanes three
     times. With one sample per lane there is no path regeneration, and every batch of lanes
-    waits for its longest path: with one compaction a 1-spp pass took 1.73x an 8-spp pass's
-    CPU time per sample (122 against 71 ms per 65 536 samples), with three 1.16x (82 ms);
-    a 1920x1080 render of 64 spp 129 s -> 95 s. Fails above 1.4x; the wall-time ratio is
-    recorded beside it."""
-    from jaxrt.path import compactions
+    waits for its longest path: with one compaction a 1-spp pass takes 1.73x an 8-spp pass's
+    CPU time per sample, with three 1.16x. Fails above 1.4x; the wall-time ratio is recorded
+    beside it."""
+    from jaxrt.integrators.path import compactions
 
     assert compactions(1, 256 * 256 * 2048) == 3
     ratio = _one_sample_ratio(benchmark, "path", 8, 2048)

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from jaxrt.sampler import SAMPLER_KINDS, sample_2d
+from jaxrt.sampling.sampler import SAMPLERS, sample_2d
 
 PIXELS, INDICES = 256, 8192  # 2^21 pairs = 2^22 values
 SPP = 64
@@ -41,7 +41,7 @@ def _time(fn, seed, rounds=5):
     return best
 
 
-@pytest.mark.parametrize("kind", SAMPLER_KINDS)
+@pytest.mark.parametrize("kind", SAMPLERS)
 def test_sampler_throughput(benchmark, kind):
     seed = jnp.asarray(7, jnp.int32)
     t0 = time.perf_counter()

@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import pytest
 
-from jaxrt import warp as W
-from jaxrt.gallery import GALLERY_INDEX
+from jaxrt.sampling import warp as W
+from jaxrt.validation.gallery import GALLERY_INDEX
 
 N = 1 << 20
 CASES = [pytest.param(spec, id=spec.name) for spec in W.REGISTRY]

@@ -21,9 +21,9 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxrt import scenes  # noqa: E402
-from jaxrt.estimators import DIRECT_ESTIMATORS  # noqa: E402
-from jaxrt.io import srgb_oetf  # noqa: E402
-from jaxrt.render import render  # noqa: E402
+from jaxrt.integrators.config import DIRECT_ESTIMATORS
+from jaxrt.rendering.driver import render  # noqa: E402
+from jaxrt.scene.images import srgb_oetf  # noqa: E402
 
 # the spp ceiling of a time-budgeted render; the same for every estimator and the reference,
 # because the sample stream's total is a compile-time constant (one compile per estimator)

@@ -10,7 +10,7 @@ A target image is rendered with the box's true parameters; the fit starts from g
 :func:`jaxrt.gradient`: the image at one seed, ``∂loss/∂I`` at it, and the vector–Jacobian
 product of an *independent* image (another seed), so the stochastic gradient is unbiased for
 the L2 loss; derivatives are taken with the sampling detached (see
-:mod:`jaxrt.differentiable`). Parameters are optimised as logarithms (albedo = exp(a),
+:mod:`jaxrt.rendering.differentiable`). Parameters are optimised as logarithms (albedo = exp(a),
 radiance = exp(b)): positive, and Adam's steps are relative.
 
 What the image can tell: under direct illumination a surface is lit only by the light, so a
@@ -21,8 +21,8 @@ gradient and is reported as not identifiable, not fitted. With ``--max-depth D``
 path traced (light reflected up to D − 1 times; reverse-mode derivatives of the path tracer
 need a bounded depth) and the ceiling, lit by the walls, enters the fit: with the defaults
 and ``--max-depth 3`` all seven albedos, the ceiling's included, come within 1.04 % (mean
-0.24 %) and the radiance within 0.45 % (438 s on 2 shared cores; with a 512-spp target and
-600 steps the ceiling was still 28.6 % off).
+0.24 %) and the radiance within 0.45 % (minutes on 2 cores; with a 512-spp target and 600
+steps the ceiling stays 28.6 % off).
 
 Returns (from :func:`main`) a dict with the per-step ``loss`` and parameters, the fitted and
 true values and their relative errors, and writes a figure (loss, parameters, images).
@@ -43,7 +43,7 @@ def _fit(args) -> dict:
     import optax
 
     import jaxrt
-    from jaxrt.scenes import cornell_box
+    from jaxrt.scene.builtin import cornell_box
 
     box = cornell_box(args.size, args.size)
     # direct light (mis), or with --max-depth D the path tracer: light reflected up to D − 1
@@ -70,8 +70,8 @@ def _fit(args) -> dict:
     state = opt.init(logp)
 
     # plain L2 (quadratic in the image, so jaxrt.gradient's decorrelated estimate is
-    # unbiased). Weighting pixels by 1/target (relative errors) was tried: the few light
-    # pixels then hardly count and the albedo × radiance ambiguity is left 2-65 % off.
+    # unbiased). Not weighted by 1/target (relative errors): the few light pixels would
+    # then hardly count and the albedo × radiance ambiguity would be left 2-65 % off.
     def loss(image):
         return jnp.mean((image - target) ** 2)
 
@@ -118,7 +118,7 @@ def _figure(res: dict, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxrt.io import srgb_oetf
+    from jaxrt.scene.images import srgb_oetf
 
     h = res["history"]
     fig, ax = plt.subplots(1, 6, figsize=(21, 3.6))

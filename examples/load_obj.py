@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxrt.io import read_exr, write_exr, write_png
-from jaxrt.render import render
-from jaxrt.scene_file import load_scene
+from jaxrt.rendering.driver import render
+from jaxrt.scene.file import load_scene
+from jaxrt.scene.images import read_exr, write_exr, write_png
 
 DATA = Path(__file__).resolve().parent / "data"
 

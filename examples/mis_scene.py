@@ -22,8 +22,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxrt import scenes  # noqa: E402
-from jaxrt.io import srgb_oetf  # noqa: E402
-from jaxrt.render import render  # noqa: E402
+from jaxrt.rendering.driver import render  # noqa: E402
+from jaxrt.scene.images import srgb_oetf  # noqa: E402
 
 PANELS = (("light_solid_angle", "light sampling"), ("bsdf", "BSDF sampling"),
           ("mis", "MIS (power heuristic)"))

@@ -1,11 +1,11 @@
-"""Draw every warp of jaxrt.warp.REGISTRY (points, histogram, integrated pdf) into one PNG.
+"""Draw every warp of jaxrt.sampling.warp.REGISTRY (points, histogram, integrated pdf) into one PNG.
 
 Usage: python examples/warp_gallery.py [-o warps.png] [-n NUM_SAMPLES]
 """
 
 import argparse
 
-from jaxrt.gallery import make_gallery
+from jaxrt.validation.gallery import make_gallery
 
 
 def main(argv=None):

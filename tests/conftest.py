@@ -26,13 +26,14 @@ def enable_x64():
 @pytest.fixture
 def camera_sample_mean():
     """``mean(scene, estimator, spp, seed, **params)``: each pixel's mean of
-    :func:`jaxrt.estimators.camera_sample` over samples ``0 … spp−1`` (H, W, 3) float64, the
-    per-sample program on its own (what ``estimate_at`` and ``image_vjp`` run), to compare
+    :func:`jaxrt.integrators.techniques.camera_sample` over samples ``0 … spp−1`` (H, W, 3) float64,
+    the per-sample program on its own (what ``estimate_at`` and ``image_vjp`` run), to compare
     with the render pass that lays the same samples out in lanes."""
     import jax.numpy as jnp
     import numpy as np
 
-    from jaxrt.estimators import camera_sample, make_estimator, prepare_scene
+    from jaxrt.integrators.config import make_estimator, prepare_scene
+    from jaxrt.integrators.techniques import camera_sample
 
     def mean(scene, estimator: str, spp: int, seed: int, **params):
         est = make_estimator(estimator, **params)
@@ -80,8 +81,7 @@ def fresh_traces():
     under the same static arguments, which both caches would otherwise answer unpatched."""
     import jax
 
-    from jaxrt import program_cache
-
+    from jaxrt.rendering import program_cache
     jax.clear_caches()
     program_cache.release_programs()
     yield

@@ -23,8 +23,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from jaxrt import warp as W
-from jaxrt.intersect import closest_hit, intersect_triangle, triangle_set
+from jaxrt.geometry.triangle import closest_hit, intersect_triangle, triangle_set
+from jaxrt.sampling import warp as W
 
 # a property's examples share one compile; the deadline would count it against the first
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True)

@@ -1,0 +1,1 @@
+"""The ``jaxrt`` command, its worker processes and Ctrl-C handling."""
