@@ -27,8 +27,9 @@ sampler's stream, so "independent" and "sobol" levels equal separate renders bit
 "stratified" the strata are laid out for the largest level.
 
 Plots (matplotlib Agg) go to ``benchmarks/plots/``, the markdown tables and a description of
-the machine (CPU, cores, jax version, load average at the start) to ``benchmarks/RESULTS.md``,
-between ``<!-- convergence:begin/end -->`` markers (the rest of the file is kept).
+the machine (CPU, cores, jax version, load average at the start) to
+``benchmarks/.cache/results.md`` (not tracked), between ``<!-- convergence:begin/end -->``
+markers (the rest of the file is kept); the current tables belong in ``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 CACHE_DIR = HERE / ".cache"
 PLOT_DIR = HERE / "plots"
-RESULTS = HERE / "RESULTS.md"
+RESULTS = HERE / ".cache" / "results.md"
 VS_MITSUBA_JSON = CACHE_DIR / "vs_mitsuba.json"
 
 QUICK_SCENES = ("cornell_box", "cornell_box_small")  # one scene structure: compiles are shared
@@ -239,7 +240,7 @@ def plot(rows: list[dict], path_prefix: Path) -> list[Path]:
 
 def markdown(rows: list[dict], machine: dict, width: int, height: int, ref_spp: int,
              plots: list[Path]) -> str:
-    """The convergence section of RESULTS.md."""
+    """The convergence section of the results file (:data:`RESULTS`)."""
     la = ", ".join(f"{x:.2f}" for x in machine["loadavg"])
     lines = [
         "## Convergence study (`benchmarks/convergence.py`)", "",
@@ -273,6 +274,7 @@ def markdown(rows: list[dict], machine: dict, width: int, height: int, ref_spp: 
 def write_section(key: str, text: str, path: Path = RESULTS) -> None:
     """Replace (or append) the block between ``<!-- key:begin -->`` and ``<!-- key:end -->``."""
     begin, end = f"<!-- {key}:begin -->", f"<!-- {key}:end -->"
+    path.parent.mkdir(parents=True, exist_ok=True)
     old = path.read_text() if path.exists() else "# jaxrt benchmark results\n"
     block = f"{begin}\n{text}\n{end}"
     if begin in old and end in old:
@@ -550,7 +552,7 @@ def mitsuba_comparison(levels=(1, 2, 4, 8, 16), mitsuba_spps=(1, 2, 4, 8, 16, 32
 
 
 def mitsuba_markdown(res: dict) -> str:
-    """The jaxrt-vs-Mitsuba section of RESULTS.md from :func:`mitsuba_comparison`'s dict."""
+    """The jaxrt-vs-Mitsuba section of the results file from :func:`mitsuba_comparison`'s dict."""
     m, j, r = res["mitsuba"], res["jaxrt"], res["ratios"]
     la = ", ".join(f"{x:.2f}" for x in res["machine"]["loadavg"])
     lines = [
@@ -616,7 +618,7 @@ def mitsuba_markdown(res: dict) -> str:
 
 
 def main(argv=None) -> int:
-    """Command line: run the study, write plots and the RESULTS.md section."""
+    """Command line: run the study, write plots and the results file's section."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true",
                     help=f"scenes {QUICK_SCENES}, estimators {QUICK_ESTIMATORS}")

@@ -4,27 +4,24 @@
     python benchmarks/kernel_sources.py --estimator mis --spp 32 --compile   # compile, by line
 
 Compiles the real render pass (:class:`jaxrt.rendering.passes.RenderPass`, 256² Cornell box, the
-independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's
-time to the source line of its root operation (the optimised HLO's ``stack_frame_id``
-tables), innermost frame first, beside the number of kernels of that line and how many of
-them are distinct (XLA:CPU compiles a kernel once however many identical copies a program
-holds, and each distinct kernel costs ~20–40 ms of CPU to compile: benchmarks/README.md,
-"twelfth session"). Then it lists the costly
-operations (``sin``, ``cos``, ``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source
-line appears in more than one kernel: XLA:CPU fuses a cheap elementwise producer into every
-consumer, so such a value is computed once per kernel that reads it (and once per element of
-a (…, 3) output); :func:`jaxrt.core.vecmath.computed_once` stores it. Each compaction stage of
-the path pass is a copy of its step, so there every line shows up once per stage; and one
-line of the sampler's hash serves every random dimension, so its count is mostly distinct
-values.
+independent sampler), runs it once under ``jax.profiler`` and charges every XLA:CPU kernel's time to
+the source line of its root operation (the optimised HLO's ``stack_frame_id`` tables), innermost
+frame first, beside the number of kernels of that line and how many of them are distinct (XLA:CPU
+compiles a kernel once however many identical copies a program holds, and each distinct kernel costs
+~20–40 ms of CPU to compile: benchmarks/README.md#xla-cpu). Then it lists the costly operations
+(``sin``, ``cos``, ``rsqrt``, ``sqrt``, divisions, the sampler's hash) whose source line appears in
+more than one kernel: XLA:CPU fuses a cheap elementwise producer into every consumer, so such a
+value is computed once per kernel that reads it (and once per element of a (…, 3) output);
+:func:`jaxrt.core.vecmath.computed_once` stores it. Each compaction stage of the path pass is a copy
+of its step, so there every line shows up once per stage; and one line of the sampler's hash serves
+every random dimension, so its count is mostly distinct values.
 
-It shows where :func:`~jaxrt.core.vecmath.computed_once` pays (benchmarks/README.md, "fifth
-session").
+It shows where :func:`~jaxrt.core.vecmath.computed_once` pays (benchmarks/README.md#computed-once).
 
 ``--compile`` charges the *compile* instead: the pass is compiled in a fresh process with
 XLA's log on (``TF_CPP_VMODULE``), and the MLIR and LLVM seconds XLA reports for each kernel
 module go to the source line of the kernel's root operation, summed by file and by line
-(benchmarks/README.md, "twenty-fifth session").
+(benchmarks/README.md#first-frame).
 """
 
 from __future__ import annotations
@@ -162,7 +159,7 @@ def main(argv=None) -> None:
             by_line[line_of(kernel)] += t
             total += t
     # each distinct fusion is compiled once (~20-40 ms of CPU, whatever its size), run or
-    # not: the compile cost by line (benchmarks/README.md, "eleventh" and "twelfth session")
+    # not: the compile cost by line (benchmarks/README.md#xla-cpu)
     compiled = collections.Counter(line_of(kernel) for kernel in bodies)
     first = {}
     for kernel, body in bodies.items():

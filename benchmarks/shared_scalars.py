@@ -15,7 +15,7 @@ against a regenerated camera ray. Three ways to write the same step:
 For each it prints the kernels of the compiled program, how many of them compute ``sin``
 (XLA fuses a cheap elementwise producer into every consumer, so a shared value is computed
 once per consumer kernel, and per element of an (N, 3) one) and the median time of a call.
-benchmarks/README.md quotes one run.
+benchmarks/README.md#vector-type quotes one run.
 """
 
 from __future__ import annotations

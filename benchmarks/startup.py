@@ -160,7 +160,7 @@ _LAST_TIMES = _cpu_times()
 def _load() -> str:
     """Load averages, and the share of CPU time stolen by the host since the last reading:
     a shared VM at steal ≳ 5 % (or whose wall time exceeds its CPU time in a two-thread
-    pass) is running slower than its load says (benchmarks/README.md, "fifteenth session")."""
+    pass) is running slower than its load says (benchmarks/README.md#method)."""
     global _LAST_TIMES
     one, five, fifteen = os.getloadavg()
     text = f"load {one:.2f} {five:.2f} {fifteen:.2f}"

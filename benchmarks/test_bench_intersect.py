@@ -4,7 +4,7 @@ Run: ``pytest benchmarks/test_bench_intersect.py --benchmark-enable`` (add ``-k 
 select sizes). Each case records ``mrays_per_s``, ``compile_s`` (``.lower().compile()``) and
 for the BVH ``build_s`` in ``benchmark.extra_info``. Queries are compiled with jaxrt's
 ``compiler_options()`` (as the renderer's programs are); Embree (``pip install embreex``) is
-timed in the same run and its ratio recorded. Results: benchmarks/README.md.
+timed in the same run and its ratio recorded. Results: benchmarks/README.md#results-intersection.
 """
 
 import time

@@ -6,7 +6,7 @@ Run (several minutes on a loaded machine; one run measures everything)::
 
 The whole comparison is :func:`convergence.mitsuba_comparison` (run once per module; its
 dict is saved to ``benchmarks/.cache/vs_mitsuba.json`` and ``python benchmarks/convergence.py
---mitsuba-only --cached`` turns it into the RESULTS.md section). The tests report samples/s
+--mitsuba-only --cached`` turns it into a markdown table). The tests report samples/s
 and time-to-equal-RMSE ratios in ``benchmark.extra_info``, check that the two converged
 images agree within their noise, and state the targets: the firm ones (≥ 0.45× Mitsuba's
 samples per CPU-second, Sobol at ≤ 0.5× its time to RMSE 0.03) as tests, the stretch ones
@@ -143,11 +143,11 @@ def test_bench_paired_per_cpu_second(benchmark):
 def test_target_per_cpu_second():
     """The target: jaxrt's pass renders ≥ 0.45× Mitsuba's samples per CPU-second, paired in
     one process (0.60–0.70× on an AMD family-25 VM and 0.74–0.79× on a family-23 one:
-    benchmarks/README.md).
+    benchmarks/README.md#results-mitsuba).
 
     A run inside one of the shared VM's slow episodes, where jaxrt's pass runs ~2.4× slower
-    for seconds at a time while Mitsuba keeps its speed, reads 0.32–0.40× (benchmarks/
-    README.md, "twenty-fifth session"); a run below the target is repeated once, and the test
+    for seconds at a time while Mitsuba keeps its speed, reads 0.32–0.40×
+    (benchmarks/README.md#method); a run below the target is repeated once, and the test
     fails when the repeat is below it too (a pass that lost half its speed fails both).
     """
     import paired_vs_mitsuba as pvm

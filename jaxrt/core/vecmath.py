@@ -58,7 +58,7 @@ def computed_once(x: Array) -> Array:
     direction (spawn offset, traversal, the next shading frame, a path's regeneration select)
     and a path step's radiance after next-event estimation (its state and the fold into the
     pixel's four sums): 256² Cornell box path pass 1.04–1.12× and 1.01–1.10× per CPU-second
-    for the two (benchmarks/README.md).
+    for the two (benchmarks/README.md#computed-once).
     """
     pair = jnp.stack([x, jnp.full_like(x, -0.0)])
     return jax.lax.reduce(pair, jnp.asarray(-0.0, pair.dtype), _plus, (0,))
@@ -80,7 +80,7 @@ def dot(a: Array, b: Array) -> Array:
 
     A reduction, not ``a₀b₀ + a₁b₁ + a₂b₂``: under ``vmap`` the per-component form slices the
     minor axis of (N, 3) arrays, and the 256² MIS render runs ~0.7× as fast
-    (benchmarks/README.md).
+    (benchmarks/README.md#vector-type).
     """
     return jnp.sum(a * b, axis=-1)
 
@@ -92,7 +92,7 @@ def dot_components(a, b) -> Array:
     The other form of :func:`dot`, for vectors formed per component: there a reduction fuses
     the stack, a transpose and the sum over the axis of 3 into one kernel, which XLA:CPU runs
     ~10× slower per lane than these products (an area light's pdf at a BSDF ray's hit:
-    benchmarks/README.md, "twentieth session"). Where the operands are stored (…, 3) arrays,
+    benchmarks/README.md#vector-type). Where the operands are stored (…, 3) arrays,
     :func:`dot` is the faster one.
     """
     return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]

@@ -17,11 +17,11 @@ import numpy as np
 #: XLA:CPU options wanted for every program of the per-sample code (render passes,
 #: ``estimate_at``, gradient passes): set per compilation, never process-wide, so a user's own
 #: programs are untouched; :func:`compiler_options` keeps those the installed XLA knows.
-#: Measured on the 256² Cornell box (benchmarks/README.md, "render hot path"):
+#: Measured on the 256² Cornell box (benchmarks/README.md#compiler-options):
 #:
 #: - ``xla_cpu_prefer_vector_width=512``: MIS 1.5× per CPU-second on a CPU with AVX-512. On a
 #:   CPU without it XLA uses what exists: on AVX2 the option changes neither the compile time
-#:   nor the speed nor the images (benchmarks/README.md, "sixteenth session").
+#:   nor the speed nor the images (benchmarks/README.md#compiler-options).
 #: - ``xla_cpu_experimental_ynn_fusion_type=""`` (no YNNPACK fusions): XLA:CPU hands every
 #:   reduction to YNNPACK, whose reduction over the minor axis of an (N, 3) array (each
 #:   ``vecmath.dot`` under ``vmap``) takes ~9× as long as XLA's own loop; without them MIS
@@ -74,8 +74,8 @@ def compiler_options_soon() -> concurrent.futures.Future:
     The probe's trivial program (most of its time the process's first-compile set-up) then
     compiles while the caller traces its program, which needs the options only when it
     compiles (:meth:`jaxrt.rendering.passes.RenderPass.compile`): part of the probe's time
-    comes off a first frame, the rest shares the GIL with the trace (benchmarks/README.md,
-    "seventeenth session").
+    comes off a first frame, the rest shares the GIL with the trace
+    (benchmarks/README.md#second-run).
     Already resolved once :func:`compiler_options` has run in this process.
     """
     if compiler_options.cache_info().currsize:

@@ -3,7 +3,7 @@
 A small scene is intersected fastest by testing every triangle (one fused loop, no
 gathers, no divergence); a large one needs a BVH. :func:`build_geometry` picks between them
 from the triangle count, with the crossover measured on this machine class (see
-benchmarks/README.md, "brute force vs BVH crossover").
+benchmarks/README.md#bvh-crossover).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from jaxrt.geometry.triangle import TriangleSet, triangle_set
 
 # Brute force is faster below this many triangles (2-core CPU, with the BVH's ray compaction:
 # incoherent rays cross over between 80 and 192 triangles, ≈ 90 by log-log interpolation;
-# benchmarks/crossover.py, benchmarks/README.md).
+# benchmarks/crossover.py, benchmarks/README.md#bvh-crossover).
 AUTO_BVH_THRESHOLD = 96
 
 

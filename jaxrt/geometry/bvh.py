@@ -18,7 +18,7 @@ runs the batch in lockstep only until a quarter of its rays still run, then gath
 into a batch a quarter the size, and so on, so a batch does not pay full width for its
 slowest rays.
 
-How it is made fast under XLA:CPU (measured, benchmarks/README.md): every array is 1-D
+How it is made fast under XLA:CPU (measured, benchmarks/README.md#bvh-traversal): every array is 1-D
 (one gather per coordinate), every loop body has one consumer per costly value (XLA fuses a
 value into each consumer's kernel and recomputes it; ``optimization_barrier`` does not stop
 it), so the cursor is one integer and the leaf loop is software-pipelined, and the box visits
@@ -148,7 +148,7 @@ def build_bvh(triangles, leaf_size: int = 2, n_bins: int = 16) -> BVH:
 
 
 # Box visits per leaf test in one traversal step (8 / 12 / 16 / 24 measured 1.41 / 1.51 /
-# 1.66 / 1.36 Mrays/s on 82k triangles; benchmarks/README.md).
+# 1.66 / 1.36 Mrays/s on 82k triangles; benchmarks/README.md#bvh-traversal).
 BOX_STEPS = 16
 
 
@@ -263,7 +263,7 @@ def _leaf_step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool) -> _Cursor:
 # and query, 20 in a BVH scene's MIS pass), and under vmap the step is per ray, so every call
 # has the same shapes: traced once per query kind, then only batched, which halves the MIS
 # pass's trace on the Cornell box as a BVH; the compiled program and the images are the
-# same (XLA inlines the call; benchmarks/README.md).
+# same (XLA inlines the call; benchmarks/README.md#bvh-compaction).
 @partial(jax.jit, static_argnums=(3, 4))
 def _step(bvh: BVH, ray: _Ray, c: _Cursor, stop_at_first: bool, box_steps: int) -> _Cursor:
     """Up to ``box_steps`` box visits (until a leaf is entered), then that leaf's test.
@@ -322,7 +322,7 @@ def running_lanes(running: Array, cap: int) -> Array:
     ``jnp.nonzero`` does two cumulative sums (an associative scan of log N levels each) and a
     bincount: in a BVH scene's MIS pass (12 compaction stages) 110 more kernels, 12 more of
     them distinct; this form's XLA compile 0.91× the wall time, 0.95× the CPU time, pass time
-    unchanged (benchmarks/README.md). Shapes: running (N,) bool -> (cap,) int32.
+    unchanged (benchmarks/README.md#bvh-compaction). Shapes: running (N,) bool -> (cap,) int32.
     """
     n = running.shape[0]
     if n >= 1 << 24:  # float32 counts would no longer be exact
@@ -386,7 +386,8 @@ def _make_traverse(stop_at_first: bool):
     batched) its batching rule runs :func:`_traverse_batch` instead of a lockstep
     ``while_loop``: same per-ray results; on 82k triangles (2^14 rays, paired) 1.3× faster
     for incoherent rays and 2.9× (closest) / 3.9× (any) for camera rays, whose slowest rays
-    graze the silhouette (benchmarks/README.md). A batch of BVHs falls back to lockstep.
+    graze the silhouette (benchmarks/README.md#bvh-compaction). A batch of BVHs falls back to
+    lockstep.
     """
 
     @jax.custom_batching.custom_vmap

@@ -26,7 +26,7 @@ a path asks which face it meets first (:func:`convex_closest_hit`, through
 :func:`jaxrt.scene.queries.intersect`): the plane it enters by, or from inside the one it leaves by,
 as the body's two-sided triangles would be hit. On the 256² Cornell box the path pass runs
 1.06× as fast as with the blocks' 20 triangles in its closest-hit loop, the clipping being
-one kernel with one output (benchmarks/README.md).
+one kernel with one output (benchmarks/README.md#convex-bodies).
 
 Robustness. A shadow ray starts on a surface, offset off it by the point's error bound
 (:mod:`jaxrt.geometry.spawn`), often on the body's own face. ``c − n · (o − v)``, with ``v`` a
@@ -172,7 +172,7 @@ def _row_of(key: Array, bits: int) -> Array:
 # a jit of its own: a direct estimator calls it twice per sample (shadow ray, BSDF ray), and
 # under vmap the second call reuses the first's trace, batching and lowering (the same
 # optimised program; with the camera hit's jit, jaxrt.rendering.passes.lane_sums, the pass
-# traces in less time: benchmarks/README.md, "sixteenth session")
+# traces in less time: benchmarks/README.md#trace-once)
 @jax.jit
 def convex_any_hit(bodies: ConvexBodies, o: Array, d: Array, t_max: Array) -> Array:
     """Whether the segment ``o + t d``, ``0 < t < t_max``, passes through any body (one ray).

@@ -12,7 +12,7 @@ watertight test permutes, shears and bounds every triangle for every ray. On the
 Cornell box the camera rays' loop costs about half the watertight one and the MIS pass runs
 ~1.1× as fast per CPU-second; storing ``n / V`` so that the loop keeps the largest
 ``1/t = d · (n / V)`` (no division per triangle, ``t_max`` applied to the winner) gives a few
-per cent more (benchmarks/README.md).
+per cent more (benchmarks/README.md#eye-planes).
 
 The vertices come in the canonical order of :func:`jaxrt.geometry.triangle.canonical_vertices`, so
 two triangles that share an edge hold the same ``N`` for it, and the table is one
@@ -124,11 +124,10 @@ def eye_planes(geometry, camera) -> Array | None:
     host (numpy) as :class:`~jaxrt.scene.container.Scene` is built or given a new camera or
     geometry.
 
-    The render pass then reads the table as an input instead of forming it per pass: ten
-    fewer distinct kernels to compile, a shorter XLA compile (benchmarks/README.md,
-    "fifteenth session"). Returns (F', 15) in the vertices' dtype, or
-    None for a BVH or for arrays traced by a transformation (the program then forms it: the
-    same triangles hit but for rays within rounding of an edge).
+    The render pass then reads the table as an input instead of forming it per pass: ten fewer
+    distinct kernels to compile, a shorter XLA compile (benchmarks/README.md#eye-planes). Returns
+    (F', 15) in the vertices' dtype, or None for a BVH or for arrays traced by a transformation (the
+    program then forms it: the same triangles hit but for rays within rounding of an edge).
     """
     if not isinstance(geometry, TriangleSet):
         return None

@@ -6,15 +6,13 @@ vertices or lie inside its walls. A triangle whose plane has every vertex and ev
 one side (closed) — a wall of a room, the floor under everything, a face of the convex hull —
 then meets such a segment only at an end (``t ≈ 0`` or ``t ≈ t_max``, which the any-hit test
 excludes: the δt bound and the light end's offset) or along its plane (parallel: never a hit).
-So shadow rays need not test it: on the Cornell box 10 of 32 triangles (the five walls),
-and an any-hit loop over the other 22 (padded to 24) makes the 256² MIS pass up to 1.17× and
-the path pass ~1.06× as fast per CPU-second, images bit-identical (benchmarks/README.md,
-"shadow rays skip what cannot block them"). Nor need they test a
-triangle in the plane of every point the lights sample (:func:`coplanar_faces`: the
-Cornell box's light quad), which the segment meets only at its light end: 20 tests left.
-Those 20 are the two blocks, which :func:`shadow_blockers` then hands to
-:mod:`jaxrt.geometry.convex`: a closed convex body is tested by its face planes (five per block),
-not by its triangles.
+So shadow rays need not test it: on the Cornell box 10 of 32 triangles (the five walls), and an
+any-hit loop over the other 22 (padded to 24) makes the 256² MIS pass up to 1.17× and the path pass
+~1.06× as fast per CPU-second, images bit-identical (benchmarks/README.md#shadow-occluders). Nor
+need they test a triangle in the plane of every point the lights sample (:func:`coplanar_faces`: the
+Cornell box's light quad), which the segment meets only at its light end: 20 tests left. Those 20
+are the two blocks, which :func:`shadow_blockers` then hands to :mod:`jaxrt.geometry.convex`: a
+closed convex body is tested by its face planes (five per block), not by its triangles.
 
 Only which triangles are tested changes; every test is the full watertight one. Lights that
 sample points outside the scene (directional lights, environments) make every triangle a

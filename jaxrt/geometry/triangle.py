@@ -32,13 +32,13 @@ Floating-point notes (why this is watertight under XLA):
   by ``1/d_z``; pbrt's form is right only for ``|d_z| ≈ 1`` and rejects genuine hits of a
   1e-8-thin slab along an unnormalised shadow ray of length 2e-4.
 
-Brute-force form (on the 36-triangle box, 2^16 rays; benchmarks/README.md): a ``fori_loop``
-over triangles of a per-ray kernel whose body has ONE output (the hit distance) beats ``vmap``
-over triangles + ``argmin`` (~2× slower) and loops over blocks of 8/16 triangles (~8× slower);
-an SoA vertex layout makes no difference beyond noise, and a ``while_loop`` with early exit
-makes any-hit ~3× slower than the ``fori_loop``. The winner's barycentrics and normal are
-recovered after the loop. Work on ``(N, 3)`` arrays sliced along the minor axis is ~100×
-slower under ``vmap``, hence the scalar-component kernel.
+Brute-force form (on the 36-triangle box, 2^16 rays; benchmarks/README.md#brute-force-loop): a
+``fori_loop`` over triangles of a per-ray kernel whose body has ONE output (the hit distance) beats
+``vmap`` over triangles + ``argmin`` (~2× slower) and loops over blocks of 8/16 triangles (~8×
+slower); an SoA vertex layout makes no difference beyond noise, and a ``while_loop`` with early exit
+makes any-hit ~3× slower than the ``fori_loop``. The winner's barycentrics and normal are recovered
+after the loop. Work on ``(N, 3)`` arrays sliced along the minor axis is ~100× slower under
+``vmap``, hence the scalar-component kernel.
 
 Closest hit carries ``(t, prim)`` as ONE complex number ``t + i·prim`` (prim exact as a float
 below 2^24 triangles): the loop body then has one output and compiles to one kernel per
@@ -55,7 +55,7 @@ per batch); it shares :func:`closest_loop` and :func:`finish_hit` with the loop 
 Four triangles per loop iteration (``unroll=4``): each iteration also runs a few tiny kernels
 (the counter's copy and increment, the condition), so fewer iterations pay: the 256² MIS render
 1.08× as fast per CPU-second as without unrolling (unroll 2: 1.03×), images bit-identical
-(benchmarks/README.md).
+(benchmarks/README.md#brute-force-loop).
 """
 
 from __future__ import annotations
@@ -148,7 +148,7 @@ def winner_hit(frame: RayFrame, t: Array, prim: Array, v: list, ng: Array,
     on its own, so the kernel that forms ``p`` (fused with the convex faces' select,
     :func:`jaxrt.scene.queries.intersect`) would evaluate the barycentrics, two divisions among
     them, once per component; stored, the path pass runs ~1.2× as fast per CPU-second
-    (benchmarks/README.md, "twentieth session"). Not for the camera's and the BSDF ray's emitter
+    (benchmarks/README.md#winner-record). Not for the camera's and the BSDF ray's emitter
     hits of the direct estimators, whose points have few consumers (storing does not pay).
     """
     hit = prim >= 0
@@ -509,7 +509,7 @@ def finish_hit(geometry: TriangleSet, frame: RayFrame, t: Array, prim: Array,
     # twelve, a row offset apiece). Each is stored (computed_once): fused into their consumers
     # as XLA chooses, the BSDF ray's winner can be evaluated differently in a one-sample pass
     # (whose loop XLA inlines) than in longer ones, an ulp apart; stored, the 256² MIS pass
-    # also runs faster (benchmarks/README.md, "twelfth session")
+    # also runs faster (benchmarks/README.md#winner-record)
     c = [computed_once(column[k].astype(t.dtype)) for column in geometry.columns]
     return winner_hit(frame, t, prim, c[0:9], jnp.stack(c[9:12]), stored_barycentrics)
 

@@ -65,7 +65,7 @@ Samples are folded in index order, so the sums are those of the plain loop over 
 bit for bit. Useful lane-steps, 256² Cornell box, unbounded, 32 samples per pass, per batch
 of 16 384 lanes: 22 % in lockstep (one path per lane), 55–71 % with regeneration, 71–83 %
 with regeneration and one compaction (75–87 % with three, for 3× the compile time;
-benchmarks/README.md).
+benchmarks/README.md#path-lanes).
 :func:`path` (one path from a given vertex: ``estimate_at``, ``camera_sample``) runs the
 same step without regeneration.
 
@@ -152,8 +152,8 @@ def scatter(scene: Scene, est: Estimator, st: PathState, s: Stream) -> tuple[Pat
     tl = light_term(scene, st.x, s.u2(base), s.u1(base + 2))
     wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, 1, tl.pdf_light, 1, tl.pdf_bsdf))
     # stored once, as in `arrive`: fused into the (3,) radiance below, the weight (both pdfs,
-    # the light's table rows gathered) would be computed per component (benchmarks/README.md,
-    # "twentieth session")
+    # the light's table rows gathered) would be computed per component
+    # (benchmarks/README.md#computed-once)
     wl = computed_once(wl)
     # read by the state and, when the path ends here, by the fold into the pixel's four sums
     radiance = computed_once(st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0))
@@ -240,10 +240,9 @@ def compactions(count: int, samples: int) -> int:
     of 2: 2 compactions from 2.5·10⁷ samples at count 1 and 6.4·10⁷ at count 2, 3 from 10⁸
     at count 1, otherwise 1. Passes of 2 samples are render's default from ~0.7 megapixels,
     of 1 above 2^20 pixels (:func:`jaxrt.rendering.driver.default_spp_per_pass`): a 1920×1080 render
-    of 16 spp or more gets 2, of 64 or more 3 (benchmarks/README.md, "twenty-sixth
-    session"). An unbounded render (``spp=None``: a time budget or a target error) counts as
-    one pass, its length unknown when the pass compiles: it keeps 1 unless its passes are
-    long enough alone.
+    of 16 spp or more gets 2, of 64 or more 3 (benchmarks/README.md#path-lanes). An unbounded
+    render (``spp=None``: a time budget or a target error) counts as one pass, its length
+    unknown when the pass compiles: it keeps 1 unless its passes are long enough alone.
     """
     if count == 1:
         return 3 if samples >= 100_000_000 else 2 if samples >= 25_000_000 else 1

@@ -214,7 +214,7 @@ def _vjp_pass(scene, params, cotangent, seed, start, *, est, sampler, spp_total,
     carry. Each grad's tape lives within its loop iteration, so nothing is stacked across
     samples. ``jax.vjp`` of the whole pass would stack every residual of every sample (about
     twice the primal's kernels) and cost 3.0–3.8× the primal pass; this one costs 1.3–1.6×
-    (benchmarks/README.md, "Gradients and batches"). Equal up to float32 rounding.
+    (benchmarks/README.md#gradient-fold). Equal up to float32 rounding.
     """
     h, w = scene.height, scene.width
     num_pixels = h * w

@@ -19,7 +19,8 @@ computed per channel from running sums. How the work is cut never changes the nu
   sequential chain over its sample indices 0, 1, 2, … wherever the passes cut it. Each sum
   is a float32 pair (hi, lo) advanced by an error-free TwoSum, and the host forms hi + lo in
   float64 (≤ 1e-12 relative to an exact sum of the same samples, tested; float32 alone is
-  off by ~8e-6 at 2 048 spp). The pair costs ~1 % per CPU-second (benchmarks/README.md);
+  off by ~8e-6 at 2 048 spp). The pair costs ~1 % per CPU-second
+  (benchmarks/README.md#carried-sums);
 - every sample is a pure function of (seed, pixel, sample index), so the same seed gives a
   bit-identical image and standard error whatever the tile size, batch size, pass size,
   device count or process count.
@@ -155,7 +156,8 @@ def render(scene: Scene, estimator: str | Estimator = "mis", spp: int | None = N
         batch_size: tiles evaluated at once (memory ∝ tile_size · batch_size). The default
             256 × 64 = 16 384 lanes per step renders the 256² Cornell box 1.4–1.6× faster
             than 1 024 lanes (XLA:CPU's fixed cost per kernel call is amortised over more
-            lanes; benchmarks/RESULTS.md); a small image still runs as one step of its tiles.
+            lanes; benchmarks/README.md#step-lanes); a small image still runs as one step of
+            its tiles.
         devices: how many of this process's devices (``jax.local_devices()``) to split the
             tiles over (default: all).
         progress: print what is compiled and show a tqdm bar on stderr (default: when more

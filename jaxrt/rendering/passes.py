@@ -105,7 +105,7 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
       independent within an iteration, and XLA:CPU runs them side by side on its two
       threads; in sequence, the camera loop's kernels run on one thread while the other
       is mostly idle (the 256² MIS pass renders 1.10× as many samples per CPU-second
-      pipelined, images bit-identical: benchmarks/README.md). The price:
+      pipelined, images bit-identical: benchmarks/README.md#pipelined-loop). The price:
       the first camera hit is found before the loop (a second copy of that part of the
       program, compile +0.2–0.3 s) and the last iteration's (sample start + count) is
       unused, 1/count of the camera rays.
@@ -125,7 +125,7 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
     stream = lambda key, index: Stream(sampler, key, index, spp_total)
     # jitted: the prologue and the loop body call it with the same types, so it is traced,
     # batched and lowered once (the same optimised program, traced in less time:
-    # benchmarks/README.md, "sixteenth session")
+    # benchmarks/README.md#trace-once)
     first = jax.jit(jax.vmap(lambda pixel, key, index: camera_hit(scene, pixel,
                                                                   stream(key, index)),
                              (0, 0, None)))
@@ -147,7 +147,7 @@ def lane_sums(scene: Scene, est: Estimator, sampler: str, spp_total: int, seed, 
         # XLA inlines a loop of one iteration, and the sample, no longer a loop carry, would
         # be fused into each of the fold's kernels and computed in each (the hazard the fold's
         # lag avoids): stored instead, which makes a 1-spp mis pass several times faster,
-        # the sums bit-identical (benchmarks/README.md, "twenty-fifth session"). Passes of 1
+        # the sums bit-identical (benchmarks/README.md#pipelined-loop). Passes of 1
         # spp are render's default above 2^20 pixels (~1 megapixel)
         last = tuple(computed_once(x) for x in last)
     return _fold(acc, last)
@@ -192,7 +192,7 @@ def render_tiles(scene: Scene, seed, start, first_tile, sums: Sums, *, est: Esti
     padded), a step's pixels laid out flat as one axis of lanes, vmapped once: the BVH's
     batching rule then sees all of its rays and compacts the slow ones (tile by tile runs
     slower). Brute-force scenes use the same flat layout: vmapped twice, as (tiles, pixels),
-    the 256² MIS pass traces longer and runs slower (benchmarks/README.md, "tenth session").
+    the 256² MIS pass traces longer and runs slower (benchmarks/README.md#step-lanes).
 
     ``sums`` and the result have a leading axis of ``steps · per_step · tile_size`` lanes
     (:func:`step_layout`: the padded last step included); lanes past the end of the image are
@@ -224,8 +224,8 @@ def render_tiles_split(scene: Scene, seed, start, first_tiles, sums: Sums, *, es
     ``start`` are replicated. One compile serves every device (a program per device would be
     compiled once each), and the devices' passes run side by side. On a 2-core CPU two
     devices run the 256² pass about as fast per CPU-second as one and compile ~1.2× as long,
-    most of the extra in XLA's SPMD partitioner (benchmarks/README.md, "twenty-first" and
-    "twenty-second session"). The numbers are one device's, bit for bit: each device's
+    most of the extra in XLA's SPMD partitioner (benchmarks/README.md#devices). The
+    numbers are one device's, bit for bit: each device's
     program is ``render_tiles``.
     """
     static = dict(est=est, sampler=sampler, spp_total=spp_total, count=count,

@@ -86,7 +86,7 @@ def pixel_key(seed, pixel) -> Array:
     A loop over a pixel's samples computes it once, before the loop, and draws its variates
     with :func:`keyed_1d` / :func:`keyed_2d`: the same values as :func:`sample_1d` /
     :func:`sample_2d`, two hash rounds fewer per variate in the loop's program (the render
-    passes do; what it saves: benchmarks/README.md, "fourteenth session").
+    passes do; what it saves: benchmarks/README.md#trace-once).
     """
     return lowbias32(_u32(pixel) ^ lowbias32(seed))
 

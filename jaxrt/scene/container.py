@@ -241,7 +241,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     on the Cornell box the variance is the same and area sampling 1.46× cheaper; with the
     light 10× smaller 1.55× more efficient; with it 3.5× larger (12× the area, close to the
     walls) solid angle has 1.5× less variance and the two are even (0.96×) — see
-    benchmarks/README.md, "light sampling".
+    benchmarks/README.md#light-sampling.
     ``light_selection``: "uniform" | "power".
 
     With no light at all the scene renders black: a warning says so.

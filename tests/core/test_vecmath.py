@@ -97,7 +97,8 @@ def test_cos_sin_octant_is_within_three_ulps_in_both_dtypes(x64):
 def test_the_concentric_disk_map_calls_no_sine_or_cosine():
     """XLA:CPU evaluates ``sin``/``cos`` by a scalar libm call per element, which keeps the
     whole fused kernel from vectorising: the 256² Cornell box MIS pass runs 1.07–1.10× and the
-    path pass 1.11× as fast per CPU-second with the polynomial (benchmarks/README.md)."""
+    path pass 1.11× as fast per CPU-second with the polynomial
+    (benchmarks/README.md#no-libm-sincos)."""
     from jaxrt.sampling.warp import square_to_cosine_hemisphere, square_to_uniform_disk_concentric
 
     u = jnp.full((64, 2), 0.3, jnp.float32)
@@ -133,7 +134,7 @@ def test_warps_of_an_azimuth_call_no_sine_or_cosine():
     """Every warp that draws ``φ = 2π u`` (or the concentric map's octant angle) does it with
     polynomials: XLA:CPU evaluates ``sin``/``cos`` by a scalar libm call per element, which
     keeps the whole fused kernel from vectorising (256² Cornell box: MIS pass 1.07–1.10×,
-    path pass 1.11× per CPU-second with the polynomial; benchmarks/README.md)."""
+    path pass 1.11× per CPU-second with the polynomial; benchmarks/README.md#no-libm-sincos)."""
     from jaxrt.sampling.warp import REGISTRY
 
     names = {"uniform_disk", "uniform_disk_concentric", "cosine_hemisphere", "uniform_sphere",

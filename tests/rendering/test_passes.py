@@ -110,9 +110,9 @@ def test_the_option_probe_compiles_on_its_own_thread_while_the_pass_traces(
 
 def test_pass_compiles_without_ynn_reductions():
     """The pass is compiled with jaxrt's options: no YNNPACK fusion is left in the program
-    (each 3-vector dot would be one, ~9× slower than XLA's own loop; benchmarks/README.md). At 64²
-    (4 096 lanes) XLA's default makes 15 of them; below ~1 000 lanes none, so a smaller pass
-    would not tell."""
+    (each 3-vector dot would be one, ~9× slower than XLA's own loop:
+    benchmarks/README.md#compiler-options). At 64² (4 096 lanes) XLA's default makes 15 of
+    them; below ~1 000 lanes none, so a smaller pass would not tell."""
     from jaxrt.core.xla import compiler_options
 
     if "xla_cpu_experimental_ynn_fusion_type" not in compiler_options():

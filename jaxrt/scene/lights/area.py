@@ -162,7 +162,7 @@ def pdf_triangle_area(t: TriangleLights, j: Array, p: Array, wi: Array, p_light:
     :func:`~jaxrt.core.vecmath.dot`'s reduction: ``p_light`` is a hit point stacked from three
     components, and under ``vmap`` XLA:CPU fuses the stack, its transpose and the reduction
     over the axis of 3 into the kernel of the MIS weight, which then runs ~10× slower per lane
-    (benchmarks/README.md, "twentieth session"). The light sample's side
+    (benchmarks/README.md#vector-type). The light sample's side
     (:func:`sample_triangle_area`) keeps the reduction: there the same rewrite is slower.
     """
     n, area = t.normal[j].astype(p.dtype), t.area[j].astype(p.dtype)
