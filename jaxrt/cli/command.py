@@ -25,7 +25,7 @@ from jaxrt.cli.processes import launch
 #: The choices of --estimator and --sampler, spelled out so that ``jaxrt --help`` and the
 #: argument checks need no JAX (tests/cli/test_cli.py checks they equal the library's).
 ESTIMATOR_NAMES = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
-                   "light_solid_angle", "mis", "mis_one_sample", "path")
+                   "light_solid_angle", "mis", "mis_one_sample", "ris", "path")
 SAMPLER_NAMES = ("independent", "stratified", "sobol")
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb")
 DEFAULT_SPP = 64
@@ -183,9 +183,10 @@ def _with_options(scene, args):
 def _write(args, result, interrupted: bool = False) -> None:
     from jaxrt.scene import images as io
     attributes = {"spp": int(result.spp), "jaxrt.stopped_by": result.stopped_by,
-                  "jaxrt.estimator": args.estimator, "jaxrt.sampling.sampler": args.sampler,
+                  "jaxrt.estimator": args.estimator, "jaxrt.sampler": args.sampler,
                   "jaxrt.seed": int(args.seed)}
-    for name in ("light_samples", "bsdf_samples", "heuristic", "max_depth", "rr_depth"):
+    for name in ("light_samples", "bsdf_samples", "heuristic", "max_depth", "rr_depth",
+                 "ris_candidates"):
         if getattr(args, name) is not None:  # what the user chose (defaults: the README's)
             value = getattr(args, name)
             attributes[f"jaxrt.{name}"] = value if isinstance(value, str) else int(value)
@@ -213,7 +214,7 @@ def _render(args) -> int:
     if args.process_id == 0:
         print(scene.summary(), flush=True)
     params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic",
-                                            "max_depth", "rr_depth")
+                                            "max_depth", "rr_depth", "ris_candidates")
               if getattr(args, k) is not None}
     return _render_interruptibly(args, scene, spp, params)
 
@@ -381,6 +382,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "light, as Mitsuba 3 counts; default: -1, unbounded)")
     r.add_argument("--rr-depth", type=_positive(int), default=None,
                    help="path: Russian roulette from this many bounces on (default: 5)")
+    r.add_argument("--ris-candidates", type=_positive(int), default=None,
+                   help="ris: light samples resampled per shading point (default: 8)")
     r.add_argument("--time-budget", type=_positive(float), default=None, metavar="SECONDS",
                    help="stop after this many seconds of rendering (compilation excluded)")
     r.add_argument("--target-error", type=_positive(float), default=None, metavar="E",

@@ -17,7 +17,7 @@ from jaxrt.scene.container import Scene, with_triangle_sampling
 #: The estimators of the reflection equation (direct illumination): on one scene they all
 #: estimate the same image.
 DIRECT_ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_area",
-                     "light_solid_angle", "mis", "mis_one_sample")
+                     "light_solid_angle", "mis", "mis_one_sample", "ris")
 #: Every estimator: the direct ones and the path tracer (global illumination,
 #: jaxrt.integrators.path).
 ESTIMATORS = DIRECT_ESTIMATORS + ("path",)
@@ -31,7 +31,8 @@ class Estimator(NamedTuple):
     multi-sample MIS estimator; heuristic: "balance" | "power" (MIS and the path tracer);
     light_prob: probability of choosing light sampling in one-sample MIS; max_depth,
     rr_depth: the path tracer's longest path in segments (−1: unbounded) and the depth from
-    which Russian roulette ends paths (:mod:`jaxrt.integrators.path`, Mitsuba 3's convention).
+    which Russian roulette ends paths (:mod:`jaxrt.integrators.path`, Mitsuba 3's convention);
+    ris_candidates: the light samples RIS resamples from (:mod:`jaxrt.integrators.ris`).
     """
 
     name: str = "mis"
@@ -41,6 +42,7 @@ class Estimator(NamedTuple):
     light_prob: float = 0.5
     max_depth: int = -1
     rr_depth: int = 5
+    ris_candidates: int = 8
 
     @property
     def triangle_sampling(self) -> str | None:
@@ -89,6 +91,13 @@ def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:
     for field, v in (("max_depth", est.max_depth), ("rr_depth", est.rr_depth)):
         if not isinstance(v, int | np.integer) or isinstance(v, bool):
             raise ValueError(f"{field} must be an integer, got {v!r}")
+    v = est.ris_candidates
+    if not isinstance(v, int | np.integer) or isinstance(v, bool) or v < 1:
+        raise ValueError(f"ris_candidates must be an integer >= 1, got {v!r}")
+    if "ris_candidates" in params and est.name != "ris" \
+            and v != Estimator._field_defaults["ris_candidates"]:
+        raise ValueError(f"ris_candidates applies to estimator='ris' only, not {est.name!r}")
+    est = est._replace(ris_candidates=int(v))
     if est.name == "path":
         if not (est.max_depth == -1 or est.max_depth >= 1):
             raise ValueError(f"max_depth must be -1 (unbounded) or >= 1, got {est.max_depth}")

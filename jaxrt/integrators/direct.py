@@ -25,6 +25,9 @@ name                       samples                                         reach
                            BSDF samples, balance or power heuristic
 ``mis_one_sample``         one technique chosen at random (probability     yes
                            ``light_prob`` for light sampling)
+``ris``                    ``ris_candidates`` light samples resampled by   yes
+                           their unshadowed luminance, one shadow ray
+                           (:mod:`jaxrt.integrators.ris`)
 =========================  ==============================================  ===============
 
 Hemisphere and BSDF sampling find emitters only by hitting them, so point, spot and
@@ -61,6 +64,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from jaxrt.integrators.config import Estimator
+from jaxrt.integrators.ris import ris
 from jaxrt.integrators.terms import (
     ShadingPoint,
     Stream,
@@ -105,7 +109,7 @@ def _sum_over(term: Callable[[int], Array], count: int) -> Array:
 
     A vmap over ``arange(1)`` gives every value of the term a trailing axis of 1 and the sum
     over it a reduction kernel: the default 1 light + 1 BSDF sample MIS render runs 1.2× slower
-    (benchmarks/RESULTS.md).
+    (benchmarks/README.md#xla-cpu).
     """
     if count == 1:
         return term(0)
@@ -165,4 +169,5 @@ DIRECT_TECHNIQUES: dict[str, Callable] = {
     "light_solid_angle": light_sampling,
     "mis": mis,
     "mis_one_sample": mis_one_sample,
+    "ris": ris,
 }

@@ -20,6 +20,7 @@ from jax import Array
 from jaxrt.integrators.config import Estimator
 from jaxrt.integrators.direct import DIRECT_TECHNIQUES
 from jaxrt.integrators.path import path, path_dims
+from jaxrt.integrators.ris import ris_dims
 from jaxrt.integrators.terms import Stream, camera_ray, shading_point
 from jaxrt.scene.container import Scene
 from jaxrt.scene.queries import TRIANGLE, SurfaceHit, emitted, intersect
@@ -39,6 +40,8 @@ def _direct_dims(est: Estimator) -> int:
         return 2 + 4 * est.light_samples + 2 * est.bsdf_samples
     if est.name == "mis_one_sample":
         return 10
+    if est.name == "ris":
+        return ris_dims(est.ris_candidates)
     return 2 + 4
 
 

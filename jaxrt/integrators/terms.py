@@ -150,14 +150,14 @@ def light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) -
     wi, pdf_light = lax.stop_gradient(ls.wi), lax.stop_gradient(ls.pdf)
     wi_local = to_local(wi, x.n)
     f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
-    visible = _visible(scene, x, ls)
+    visible = light_visible(scene, x, ls)
     value = jnp.where(visible, _div(f * ls.li * jnp.abs(wi_local[2]), pdf_light), 0)
     pdf_bsdf = lax.stop_gradient(mt.bsdf_pdf(x.material, x.wo_local, wi_local,
                                              scene.material_kinds))
     return _LightTerm(value, pdf_light, pdf_bsdf, ls.is_delta)
 
 
-def _visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
+def light_visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
     """Shadow ray from x to the sampled light point (or towards an infinitely far light).
 
     The target's error bound is :func:`jaxrt.scene.queries.light_point_error` (the light's extent

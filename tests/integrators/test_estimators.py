@@ -38,7 +38,7 @@ ALBEDO = 0.5
 N = 1 << 15
 Z = np.array([0.0, 0.0, 1.0])
 WO = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
-LIGHT_SAMPLERS = ("light_area", "light_solid_angle", "mis", "mis_one_sample")
+LIGHT_SAMPLERS = ("light_area", "light_solid_angle", "mis", "mis_one_sample", "ris")
 DIRECTION_SAMPLERS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf")
 CAMERA = look_at(eye=[0, -3, 1], target=[0, 0, 0], up=[0, 0, 1], fov_deg=30, width=4, height=4)
 
@@ -121,12 +121,14 @@ DELTA = {k for k in CASES if k.startswith("point")}
 QUICK = {("mis", "rect_parallel"), ("cosine_hemisphere", "rect_tilted"),
          ("light_area", "small_triangle_1e-4_away"), ("light_solid_angle", "triangle_1e4_away"),
          ("mis_one_sample", "sphere_partly_below"), ("bsdf", "environment_furnace"),
-         ("uniform_hemisphere", "rect_horizon_clipped"), ("mis", "point_grazing_89deg")}
+         ("uniform_hemisphere", "rect_horizon_clipped"), ("mis", "point_grazing_89deg"),
+         ("ris", "sphere_partly_below")}
 
 
 # MIS estimators sample triangle lights as the scene says: both measures are tested
-SCENE_MODE_ESTIMATORS = ("mis", "mis_one_sample")
-QUICK_SOLID_ANGLE = {("mis", "rect_tilted"), ("mis_one_sample", "triangle_1e-4_away")}
+SCENE_MODE_ESTIMATORS = ("mis", "mis_one_sample", "ris")
+QUICK_SOLID_ANGLE = {("mis", "rect_tilted"), ("mis_one_sample", "triangle_1e-4_away"),
+                     ("ris", "rect_horizon_clipped")}
 
 
 def _cases():
@@ -141,6 +143,8 @@ def _cases():
             if case in NEAR and est == "light_area":
                 continue  # test_area_sampling_misses_the_near_peak
             for mode in modes:
+                if case in NEAR and est == "ris" and mode == "area":
+                    continue  # light sampling alone: as light_area
                 quick = (est, case) in (QUICK if mode == "area" else QUICK_SOLID_ANGLE)
                 marks = () if quick else (pytest.mark.slow,)
                 name = f"{est}-{case}" + ("" if mode == "area" else "-solid_angle")

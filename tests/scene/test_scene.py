@@ -203,3 +203,16 @@ def test_no_warnings_building_builtins():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         scenes.cornell_box(width=4, height=4)
+
+
+def test_lamp_grid_has_many_lamps_facing_down():
+    """2 rows² emissive triangles, every lamp facing the floor, the far row 100× the near."""
+    s = scenes.lamp_grid(16, 12, rows=6)
+    tri = s.lights.table("triangle")
+    assert s.lights.structure.count("triangle") == 2 * 6 * 6
+    assert np.allclose(np.asarray(tri.normal), [0, -1, 0], atol=1e-6)
+    radiance = np.asarray(tri.radiance).max(-1)
+    assert np.isclose(radiance.max() / radiance.min(), 100, rtol=1e-5)
+    assert scenes.lamp_grid(16, 12).lights.structure.count("triangle") == 1152
+    with pytest.raises(ValueError, match="rows"):
+        scenes.lamp_grid(rows=0)

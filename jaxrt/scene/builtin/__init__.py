@@ -15,10 +15,13 @@ name                   what it shows
 ``veach_mis``          four plates from rough to nearly smooth, lit by four sphere lights from
                        large to tiny of equal power: where light sampling and BSDF sampling
                        each win, and MIS gets both (Veach 1997, fig. 9.2)
+``lamp_grid``          a room under 24 × 24 small ceiling lamps (1 152 emissive triangles),
+                       radiances over two orders of magnitude: many-light sampling (RIS)
 =====================  ====================================================================
 """
 
 from jaxrt.scene.builtin.cornell import cornell_box, cornell_box_glossy, cornell_box_small
+from jaxrt.scene.builtin.lamp_grid import lamp_grid
 from jaxrt.scene.builtin.veach import veach_mis
 
 BUILTIN = {
@@ -26,6 +29,7 @@ BUILTIN = {
     "cornell_box_small": cornell_box_small,
     "cornell_box_glossy": cornell_box_glossy,
     "veach_mis": veach_mis,
+    "lamp_grid": lamp_grid,
 }
 
 
@@ -40,4 +44,4 @@ def by_name(name: str, **kwargs):
 
 
 __all__ = ["BUILTIN", "by_name", "cornell_box", "cornell_box_glossy", "cornell_box_small",
-           "veach_mis"]
+           "lamp_grid", "veach_mis"]
