@@ -20,9 +20,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxrt import scenes  # noqa: E402
 from jaxrt.integrators.config import DIRECT_ESTIMATORS
 from jaxrt.rendering.driver import render  # noqa: E402
+from jaxrt.scene import builtin as scenes  # noqa: E402
 from jaxrt.scene.images import srgb_oetf  # noqa: E402
 
 # the spp ceiling of a time-budgeted render; the same for every estimator and the reference,

@@ -21,8 +21,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxrt import scenes  # noqa: E402
 from jaxrt.rendering.driver import render  # noqa: E402
+from jaxrt.scene import builtin as scenes  # noqa: E402
 from jaxrt.scene.images import srgb_oetf  # noqa: E402
 
 PANELS = (("light_solid_angle", "light sampling"), ("bsdf", "BSDF sampling"),

@@ -42,8 +42,8 @@ examples:
   jaxrt gallery -o warps.png                            every warp: samples against its pdf
 
 Ctrl-C stops a render after the pass running (about a second) and writes the image so far
-(its spp is in the EXR header); exit status 130. A scene file is JSON: see README.md,
-"Scenes", or the docstring of jaxrt/scene/file.py.
+(its spp is in the EXR header); exit status 130. A scene file is JSON: see docs/scenes.md
+or the docstring of jaxrt/scene/file.py.
 """
 
 
@@ -161,7 +161,7 @@ def _load(args):
             f"{path}: a mesh file, not a scene: a scene file (.json) places meshes, lights and "
             f"a camera, e.g. {{\"camera\": {{\"eye\": [0, 1, 4], \"target\": [0, 0, 0]}}, "
             f"\"meshes\": [{{\"file\": \"{path.name}\"}}], \"lights\": [{{\"type\": \"point\", "
-            f"\"position\": [0, 2, 0], \"intensity\": 10}}]}} (README.md, \"Scenes\")")
+            f"\"position\": [0, 2, 0], \"intensity\": 10}}]}} (docs/scenes.md)")
     if not path.exists():
         raise CLIError(f"no such scene file or built-in scene: {args.scene!r} (built-ins: "
                        f"{', '.join(sorted(scenes.BUILTIN))})")
@@ -364,7 +364,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: cornell_box")
     r.add_argument("--estimator", default="mis", choices=ESTIMATOR_NAMES,
                    help="direct-illumination estimator, or 'path' for global illumination "
-                        "(README.md, \"Estimators\" and \"Global illumination\")")
+                        "(docs/estimators.md and docs/path_tracing.md)")
     r.add_argument("--spp", type=_positive(int), default=None,
                    help=f"samples per pixel (default: {DEFAULT_SPP}; no limit with "
                         "--time-budget or --target-error, where it is a maximum)")

@@ -1,7 +1,7 @@
 """Bounding volume hierarchy: a pytree of flat arrays and its stackless traversal in JAX.
 
 The tree is built on the host (:mod:`jaxrt.geometry.bvh_build`, binned SAH) and laid out depth-first
-with skip links, so a ray walks it with a single integer cursor and no stack:
+with skip links, so a ray walks it with a single integer cursor and no stack::
 
     node ← 0
     while node ≠ N:

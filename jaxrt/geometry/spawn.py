@@ -52,10 +52,10 @@ def offset_ray_origin(p: Array, p_error: Array, n: Array, w: Array) -> Array:
     ``OffsetRayOrigin`` with ``NextFloatUp``/``Down``).
 
     Args:
-        p: (3,) point on the surface; p_error: (3,) its error bound
-        (:func:`~jaxrt.geometry.triangle.surface_point`). n: (3,) unit geometric normal (either
-        orientation); zero for points not on a surface. w: (3,) direction the ray will leave in (any
-        length).
+        p: (3,) point on the surface.
+        p_error: (3,) its error bound (:func:`~jaxrt.geometry.triangle.surface_point`).
+        n: (3,) unit geometric normal (either orientation); zero for points not on a surface.
+        w: (3,) direction the ray will leave in (any length).
     Returns:
         (3,) the offset origin.
     """

@@ -1,7 +1,7 @@
 """Direct-illumination estimators: every form of the reflection equation in the lecture.
 
 At a surface point x seen along ``wo``, direct illumination is the reflection equation with
-the incident radiance replaced by emission,
+the incident radiance replaced by emission::
 
     L_r(x, wo) = ∫_{H²} f(x, wi, wo) L_e(r(x, wi), −wi) |cos θi| dwi     (hemispherical)
                = ∫_{A_e} f(x, y, z) L_e(y, x) G(x, y) dA(y),             (surface area)
@@ -10,25 +10,24 @@ the incident radiance replaced by emission,
 Each estimator below is one Monte Carlo estimator ``f(X)/p(X)`` of one of these integrals,
 for ONE camera sample (batch with ``jax.vmap``):
 
-=========================  ==============================================  ===============
-name                       samples                                         reaches delta
-                                                                           lights?
-=========================  ==============================================  ===============
-``uniform_hemisphere``     wi uniform on H², ``p = 1/2π``                   no
-``cosine_hemisphere``      wi ∝ cos θi (Malley), ``p = cos θi / π``          no
-``bsdf``                   wi from the BSDF's own sampler                  no
-``light_area``             y uniform on the light's area (surface-area     yes
-                           form); ``p_A`` → solid angle by ``d²/|cos θo|``
-``light_solid_angle``      wi uniform in the light's solid angle           yes
+=========================  ======================================================  =========
+name                       samples                                                 reaches
+                                                                                   delta?
+=========================  ======================================================  =========
+``uniform_hemisphere``     wi uniform on H², ``p = 1/2π``                          no
+``cosine_hemisphere``      wi ∝ cos θi (Malley), ``p = cos θi / π``                no
+``bsdf``                   wi from the BSDF's own sampler                          no
+``light_area``             y uniform on the light's area (surface-area form);      yes
+                           ``p_A`` → solid angle by ``d²/|cos θo|``
+``light_solid_angle``      wi uniform in the light's solid angle                   yes
                            (spherical triangle / cone)
-``mis``                    ``light_samples`` light + ``bsdf_samples``       yes
-                           BSDF samples, balance or power heuristic
-``mis_one_sample``         one technique chosen at random (probability     yes
+``mis``                    ``light_samples`` light + ``bsdf_samples`` BSDF         yes
+                           samples, balance or power heuristic
+``mis_one_sample``         one technique chosen at random (probability             yes
                            ``light_prob`` for light sampling)
-``ris``                    ``ris_candidates`` light samples resampled by   yes
-                           their unshadowed luminance, one shadow ray
-                           (:mod:`jaxrt.integrators.ris`)
-=========================  ==============================================  ===============
+``ris``                    ``ris_candidates`` light samples resampled by their     yes
+                           unshadowed luminance, one shadow ray
+=========================  ======================================================  =========
 
 Hemisphere and BSDF sampling find emitters only by hitting them, so point, spot and
 directional lights (a delta in direction) are invisible to them: their images lack that

@@ -27,6 +27,7 @@ PLY, and any geometry without a material (OBJ without MTL, glTF primitive withou
   grey diffuse ``kd = 0.5``, unless the file has vertex (or face) colours: then ``kd`` is their
   mean, decoded from 8-bit sRGB to linear, with a warning when they vary (one albedo per mesh:
   per-vertex colour is not modelled).
+
 OBJ has no two-sided emitters: ``two_sided_emission = False``.
 
 Nothing is dropped silently: degenerate triangles (a repeated index or zero area) are removed

@@ -516,7 +516,7 @@ def test_compile_cache_can_be_turned_off(tmp_path):
 
 
 def test_scene_warnings_are_one_line_without_source(tmp_path):
-    """A zero-area emissive triangle warns (README, "Scenes") in one line naming the file,
+    """A zero-area emissive triangle warns (docs/scenes.md) in one line naming the file,
     not with Python's "file:line: UserWarning" and a line of jaxrt's source."""
     doc = {"camera": {"eye": [0, 1, 4], "target": [0, 0, 0]},
            "materials": {"white": {"type": "diffuse", "albedo": 0.5}},

@@ -407,7 +407,7 @@ def test_error_prefix_is_not_doubled(tmp_path, doc, where):
 
 
 def test_build_warnings_name_the_file_and_point_at_the_caller(tmp_path):
-    """A zero-area emissive triangle warns (README, "Scenes"); the warning names the scene
+    """A zero-area emissive triangle warns (docs/scenes.md); the warning names the scene
     file and is attributed to the line that called load_scene, not to jaxrt's source."""
     v = QUAD_V + [[0, 1, 0], [0, 1, 0], [1, 1, 0]]
     mesh = {"vertices": v, "faces": QUAD_F + [[4, 5, 6]], "material": "white",

@@ -1,23 +1,23 @@
-"""Built-in scenes: the Cornell box and its variants, and a Veach-style MIS scene.
+"""Built-in scenes: the Cornell box and its variants, a Veach-style MIS scene, many lamps.
 
 Every function returns a :class:`jaxrt.scene.container.Scene`; ``width``/``height`` set the image
 size, ``accel`` and the light options are passed to :func:`jaxrt.scene.container.build_scene`.
 
-=====================  ====================================================================
-name                   what it shows
-=====================  ====================================================================
-``cornell_box``        the classic box (Cornell's measured dimensions, in metres): one
-                       ceiling area light, red and green walls, two white boxes
-``cornell_box_small``  the same box lit by a light 1/10 the size, 100× brighter (same power):
-                       hemisphere and BSDF sampling are hopeless, light sampling shines
-``cornell_box_glossy`` a Phong floor, a rough-conductor tall box and a mirror short box:
-                       every BSDF kind in one scene
-``veach_mis``          four plates from rough to nearly smooth, lit by four sphere lights from
-                       large to tiny of equal power: where light sampling and BSDF sampling
-                       each win, and MIS gets both (Veach 1997, fig. 9.2)
-``lamp_grid``          a room under 24 × 24 small ceiling lamps (1 152 emissive triangles),
-                       radiances over two orders of magnitude: many-light sampling (RIS)
-=====================  ====================================================================
+========================  ====================================================================
+name                      what it shows
+========================  ====================================================================
+``cornell_box``           the classic box (Cornell's measured dimensions, in metres): one
+                          ceiling area light, red and green walls, two white boxes
+``cornell_box_small``     the same box lit by a light 1/10 the size, 100× brighter (same power):
+                          hemisphere and BSDF sampling are hopeless, light sampling shines
+``cornell_box_glossy``    a Phong floor, a rough-conductor tall box and a mirror short box:
+                          every BSDF kind in one scene
+``veach_mis``             four plates from rough to nearly smooth, lit by four sphere lights from
+                          large to tiny of equal power: where light sampling and BSDF sampling
+                          each win, and MIS gets both (Veach 1997, fig. 9.2)
+``lamp_grid``             a room under 24 × 24 small ceiling lamps (1 152 emissive triangles),
+                          radiances over two orders of magnitude: many-light sampling (RIS)
+========================  ====================================================================
 """
 
 from jaxrt.scene.builtin.cornell import cornell_box, cornell_box_glossy, cornell_box_small
