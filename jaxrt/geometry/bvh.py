@@ -63,19 +63,20 @@ class BVH:
     is far slower on ``(rays, 3)`` arrays sliced along their minor axis than on one
     contiguous vector per coordinate.
 
-    box: 6 × (N,) node bounds ``(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)``.
-    skip: (N,) int32 node visited after a node's subtree (``N``: done).
-    leaf_start, leaf_count: (N,) int32 a leaf's triangle range; ``leaf_count == 0`` marks an
-        interior node, whose left child is the next node.
-    tri: 9 × (F + L,) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
-        reordered by leaf, padded with L degenerate triangles (one array per coordinate: a
-        gather from it is a contiguous vector per lane batch).
-    tri_sorted: 9 × (F + L,) the same triangles with their vertices in the canonical order the
-        leaf loop tests them in (:func:`jaxrt.geometry.triangle.canonical_vertices`: watertight
-        edges); ``tri`` keeps the given order for the winner's barycentrics.
-    prim: (F + L,) int32 original triangle index of each reordered triangle (−1 padding).
-    ng: (F + L, 3) unit geometric normals of the reordered triangles (as ``TriangleSet``).
-    leaf_size: static ``L``, the most triangles in a leaf (a leaf loop runs L iterations).
+    Attributes:
+        box: 6 × (N,) node bounds ``(lo_x, lo_y, lo_z, hi_x, hi_y, hi_z)``.
+        skip: (N,) int32 node visited after a node's subtree (``N``: done).
+        leaf_start, leaf_count: (N,) int32 a leaf's triangle range; ``leaf_count == 0`` marks an
+            interior node, whose left child is the next node.
+        tri: 9 × (F + L,) vertex coordinates ``(v0x, v0y, v0z, v1x, …, v2z)`` of the triangles
+            reordered by leaf, padded with L degenerate triangles (one array per coordinate: a
+            gather from it is a contiguous vector per lane batch).
+        tri_sorted: 9 × (F + L,) the same triangles with their vertices in the canonical order the
+            leaf loop tests them in (:func:`jaxrt.geometry.triangle.canonical_vertices`: watertight
+            edges); ``tri`` keeps the given order for the winner's barycentrics.
+        prim: (F + L,) int32 original triangle index of each reordered triangle (−1 padding).
+        ng: (F + L, 3) unit geometric normals of the reordered triangles (as ``TriangleSet``).
+        leaf_size: static ``L``, the most triangles in a leaf (a leaf loop runs L iterations).
     """
 
     box: tuple

@@ -45,14 +45,15 @@ SMALL_NODE = 16
 class FlatBVH(NamedTuple):
     """A BVH flattened in depth-first order (numpy, host side). ``N`` nodes, ``F`` triangles.
 
-    box_lo, box_hi: (N, 3) node bounds (exact min/max of the vertices below the node).
-    skip: (N,) int32, the node visited after node ``i`` when its subtree is skipped or
-        finished; ``N`` means "traversal done".
-    leaf_start: (N,) int32 first triangle (in the reordered array) of a leaf; 0 for interior.
-    leaf_count: (N,) int32 triangles in a leaf, 0 for interior nodes.
-    triangles: (F + leaf_size, 3, 3) triangles reordered by leaf, plus degenerate padding.
-    prim: (F + leaf_size,) int32 original index of each reordered triangle, −1 for padding.
-    depth: () int, tree depth (root = 1).
+    Attributes:
+        box_lo, box_hi: (N, 3) node bounds (exact min/max of the vertices below the node).
+        skip: (N,) int32, the node visited after node ``i`` when its subtree is skipped or
+            finished; ``N`` means "traversal done".
+        leaf_start: (N,) int32 first triangle (in the reordered array) of a leaf; 0 for interior.
+        leaf_count: (N,) int32 triangles in a leaf, 0 for interior nodes.
+        triangles: (F + leaf_size, 3, 3) triangles reordered by leaf, plus degenerate padding.
+        prim: (F + leaf_size,) int32 original index of each reordered triangle, −1 for padding.
+        depth: () int, tree depth (root = 1).
     """
 
     box_lo: np.ndarray

@@ -108,23 +108,24 @@ def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emissi
 class Scene:
     """Everything a render needs. Arrays are traced; fields marked static are compile-time.
 
-    geometry: a triangle set or BVH (:mod:`jaxrt.geometry.accel`) over all F triangles.
-    triangles: (F, 3, 3) vertices, in the geometry's primitive order.
-    prim_material: (F,) int32 material index per triangle.
-    prim_light: (F,) int32 global light index of an emissive triangle, −1 otherwise.
-    materials: material table, leading (M,) axis (:func:`jaxrt.scene.materials.material_table`).
-    lights: the light table (:mod:`jaxrt.scene.lights`).
-    camera: the camera (:mod:`jaxrt.scene.camera`); its width and height are static.
-    material_kinds: static sorted tuple of the BSDF kinds present.
-    occluders: the triangles a shadow ray tests one by one
-        (:func:`jaxrt.geometry.occluders.shadow_blockers`), or None for all of ``geometry``.
-    convex: the convex bodies shadow rays and closest hits test by their face planes
-        (:class:`jaxrt.geometry.convex.ConvexBodies`, whose triangles ``occluders`` and closest hits
-        leave out), or None.
-    eye_planes: the brute-force triangles' edge planes through the camera's eye, which the
-        camera rays are tested by (:func:`jaxrt.geometry.eye_rays.eye_planes`, formed on the
-        host), or None (a BVH, or arrays traced when the scene was made: the program forms
-        them).
+    Attributes:
+        geometry: a triangle set or BVH (:mod:`jaxrt.geometry.accel`) over all F triangles.
+        triangles: (F, 3, 3) vertices, in the geometry's primitive order.
+        prim_material: (F,) int32 material index per triangle.
+        prim_light: (F,) int32 global light index of an emissive triangle, −1 otherwise.
+        materials: material table, leading (M,) axis (:func:`jaxrt.scene.materials.material_table`).
+        lights: the light table (:mod:`jaxrt.scene.lights`).
+        camera: the camera (:mod:`jaxrt.scene.camera`); its width and height are static.
+        material_kinds: static sorted tuple of the BSDF kinds present.
+        occluders: the triangles a shadow ray tests one by one
+            (:func:`jaxrt.geometry.occluders.shadow_blockers`), or None for all of ``geometry``.
+        convex: the convex bodies shadow rays and closest hits test by their face planes
+            (:class:`jaxrt.geometry.convex.ConvexBodies`, whose triangles ``occluders`` and closest
+            hits leave out), or None.
+        eye_planes: the brute-force triangles' edge planes through the camera's eye, which the
+            camera rays are tested by (:func:`jaxrt.geometry.eye_rays.eye_planes`, formed on the
+            host), or None (a BVH, or arrays traced when the scene was made: the program forms
+            them).
 
     ``occluders``, ``convex`` and ``eye_planes`` are derived from the other fields: change
     the scene with :meth:`replace`, which forms them again (or keeps what it is given). A

@@ -19,18 +19,18 @@ LUMINANCE_WEIGHTS = (0.2126, 0.7152, 0.0722)
 
 
 class LightSample(NamedTuple):
-    """One light sample towards a shading point ``p``.
+    """One light sample towards a shading point ``p`` (batch with ``jax.vmap``).
 
-    Fields (one sample; batch with ``jax.vmap``):
-      wi: (3,) unit direction from ``p`` towards the light, world frame.
-      dist: () distance from ``p`` to the sampled point (``inf`` for directional and environment).
-      li: (3,) incident radiance along ``wi``; for delta lights the radiance-like value
-        (``I/d²`` for point and spot lights, irradiance ``E`` for directional lights) so that an
-        estimator always forms ``f · li · |cos θ| / pdf``.
-      pdf: () solid-angle density of ``wi`` *including* the light-selection pmf; for delta lights
-        the pmf alone (the delta is implied).
-      is_delta: () bool, true for point, spot and directional lights (never MIS-weighted).
-      light: () int32 global index of the sampled light (see :mod:`jaxrt.scene.lights.table`).
+    Attributes:
+        wi: (3,) unit direction from ``p`` towards the light, world frame.
+        dist: () distance from ``p`` to the sampled point (``inf`` for directional and environment).
+        li: (3,) incident radiance along ``wi``; for delta lights the radiance-like value
+            (``I/d²`` for point and spot lights, irradiance ``E`` for directional lights) so that an
+            estimator always forms ``f · li · |cos θ| / pdf``.
+        pdf: () solid-angle density of ``wi`` *including* the light-selection pmf; for delta lights
+            the pmf alone (the delta is implied).
+        is_delta: () bool, true for point, spot and directional lights (never MIS-weighted).
+        light: () int32 global index of the sampled light (see :mod:`jaxrt.scene.lights.table`).
     """
 
     wi: Array
