@@ -262,14 +262,22 @@ def _light(ctx: _Ctx, spec: dict, where: str, base: Path):
 
 
 def load_scene(path: str | os.PathLike, *, accel: str | None = None, width: int | None = None,
-               height: int | None = None) -> Scene:
+               height: int | None = None, params: dict | None = None) -> Scene:
     """Read a JSON scene description (schema in this module's docstring) into a Scene.
 
-    ``accel``, ``width`` and ``height`` override the file's options and camera. Raises
-    ``FileNotFoundError`` for a missing file and :class:`jaxrt.scene.images.FileFormatError` (a
-    ValueError) naming the file and the entry for anything malformed.
+    ``accel``, ``width`` and ``height`` override the file's options and camera. A path ending
+    in ``.xml`` is a Mitsuba 3 scene (:mod:`jaxrt.scene.mitsuba`), whose ``<default>`` values
+    ``params`` override. Raises ``FileNotFoundError`` for a missing file and
+    :class:`jaxrt.scene.images.FileFormatError` (a ValueError) naming the file and the entry for
+    anything malformed.
     """
     path = Path(path)
+    if path.suffix.lower() == ".xml":
+        from jaxrt.scene.mitsuba import load_mitsuba
+
+        return load_mitsuba(path, accel=accel, width=width, height=height, params=params)
+    if params:
+        raise TypeError(f"{path}: params apply to Mitsuba XML scenes only")
     ctx = _Ctx(path)
     try:
         text = path.read_text(encoding="utf-8")
