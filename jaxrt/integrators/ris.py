@@ -32,11 +32,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
-from jaxrt.core.vecmath import to_local
 from jaxrt.integrators.config import Estimator
-from jaxrt.integrators.terms import ShadingPoint, Stream, light_visible
+from jaxrt.integrators.terms import ShadingPoint, Stream, light_candidate, light_visible
 from jaxrt.scene import lights as lt
-from jaxrt.scene import materials as mt
 from jaxrt.scene.container import Scene
 
 
@@ -56,14 +54,9 @@ def ris(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
     m = est.ris_candidates
 
     def candidate(k):
-        u = jnp.concatenate([s.u1(4 + 3 * k)[None], s.u2(2 + 3 * k)])
-        ls = lt.sample_li(scene.lights, x.hit.p, x.n, u)
-        ls = ls._replace(wi=lax.stop_gradient(ls.wi), pdf=lax.stop_gradient(ls.pdf))
-        wi_local = to_local(ls.wi, x.n)
-        f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
-        unshadowed = f * ls.li * jnp.abs(wi_local[2])  # (3,) carries the derivative
-        target = lax.stop_gradient(lt.luminance(unshadowed))
-        return ls, unshadowed, target, resampling_weight(target, ls.pdf)
+        c = light_candidate(scene, x, s.u2(2 + 3 * k), s.u1(4 + 3 * k))
+        target = lax.stop_gradient(lt.luminance(c.unshadowed))
+        return c.sample, c.unshadowed, target, resampling_weight(target, c.sample.pdf)
 
     cands, unshadowed, target, weight = jax.vmap(candidate)(jnp.arange(m))
     total = jnp.sum(weight)

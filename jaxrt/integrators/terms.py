@@ -142,19 +142,35 @@ class _LightTerm(NamedTuple):
     is_delta: Array
 
 
-def light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) -> _LightTerm:
-    """Sample a light, test visibility, and form the light-sampling estimate and both pdfs."""
+class LightCandidate(NamedTuple):
+    """A light sample at a shading point and what it would contribute, before any shadow ray."""
+
+    sample: lt.LightSample  # its wi and pdf detached (module notes)
+    wi_local: Array  # (3,) wi in the shading frame
+    unshadowed: Array  # (3,) f · li · |cos θi|, carrying the derivative of f and li
+
+
+def light_candidate(scene: Scene, x: ShadingPoint, u_point: Array,
+                    u_select: Array) -> LightCandidate:
+    """Sample a light from ``u_select`` (choice) and ``u_point`` (2,), and evaluate the BSDF
+    towards it: light sampling's integrand without the visibility (also RIS's candidates)."""
     u = jnp.concatenate([u_select[None], u_point])
     ls = lt.sample_li(scene.lights, x.hit.p, x.n, u)
     # sampling detached: only f and li carry derivatives (module notes)
-    wi, pdf_light = lax.stop_gradient(ls.wi), lax.stop_gradient(ls.pdf)
-    wi_local = to_local(wi, x.n)
+    ls = ls._replace(wi=lax.stop_gradient(ls.wi), pdf=lax.stop_gradient(ls.pdf))
+    wi_local = to_local(ls.wi, x.n)
     f = mt.bsdf_eval(x.material, x.wo_local, wi_local, scene.material_kinds)
-    visible = light_visible(scene, x, ls)
-    value = jnp.where(visible, _div(f * ls.li * jnp.abs(wi_local[2]), pdf_light), 0)
-    pdf_bsdf = lax.stop_gradient(mt.bsdf_pdf(x.material, x.wo_local, wi_local,
+    return LightCandidate(ls, wi_local, f * ls.li * jnp.abs(wi_local[2]))
+
+
+def light_term(scene: Scene, x: ShadingPoint, u_point: Array, u_select: Array) -> _LightTerm:
+    """Sample a light, test visibility, and form the light-sampling estimate and both pdfs."""
+    c = light_candidate(scene, x, u_point, u_select)
+    visible = light_visible(scene, x, c.sample)
+    value = jnp.where(visible, _div(c.unshadowed, c.sample.pdf), 0)
+    pdf_bsdf = lax.stop_gradient(mt.bsdf_pdf(x.material, x.wo_local, c.wi_local,
                                              scene.material_kinds))
-    return _LightTerm(value, pdf_light, pdf_bsdf, ls.is_delta)
+    return _LightTerm(value, c.sample.pdf, pdf_bsdf, c.sample.is_delta)
 
 
 def light_visible(scene: Scene, x: ShadingPoint, ls: lt.LightSample) -> Array:
