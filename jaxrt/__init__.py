@@ -17,6 +17,8 @@ _LAZY = {
     "RenderInterrupted": ("jaxrt.rendering.driver", "RenderInterrupted"),
     "load_scene": ("jaxrt.scene.file", "load_scene"),
     "look_at": ("jaxrt.scene.camera", "look_at"),
+    "texture": ("jaxrt.scene.textures", "texture"),
+    "load_texture": ("jaxrt.scene.textures", "load_texture"),
     "estimate_at": ("jaxrt.integrators.point", "estimate_at"),
     "chi2_test": ("jaxrt.validation.chi2", "chi2_test"),
     "estimate_image": ("jaxrt.rendering.differentiable", "estimate_image"),

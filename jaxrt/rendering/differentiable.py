@@ -104,13 +104,17 @@ def scene_params(scene: Scene) -> dict[str, Array]:
     (M,) — one row per material (per mesh, in :func:`jaxrt.scene.container.build_scene` order);
     ``triangle.radiance`` (L, 3) one row per emissive triangle; ``point.intensity``,
     ``spot.intensity`` (L, 3) in W/sr; ``directional.irradiance`` (L, 3); ``sphere.radiance``
-    (L, 3); ``environment.radiance`` (3,) or ``environment.image`` (H, W, 3).
+    (L, 3); ``environment.radiance`` (3,) or ``environment.image`` (H, W, 3); ``textures.<k>``
+    (H_k, W_k, C_k) the linear texels of image texture k (:mod:`jaxrt.scene.textures`, in
+    ``scene.textures.bindings`` order of first use).
     """
     out = {}
     for name, (where, field) in PARAMS.items():
         t = _table(scene, where)
         if t is not None and field in t._fields:
             out[name] = getattr(t, field)
+    if scene.textures is not None:
+        out.update({f"textures.{k}": a for k, a in enumerate(scene.textures.texels)})
     return out
 
 
@@ -127,7 +131,11 @@ def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
         raise KeyError(f"not differentiable parameters of this scene: {sorted(unknown)}; it has "
                        f"{sorted(have)}")
     by_table: dict[str, dict] = {}
+    texels = None if scene.textures is None else list(scene.textures.texels)
     for name, value in params.items():
+        if name.startswith("textures."):
+            texels[int(name.split(".")[1])] = value
+            continue
         where, field = PARAMS[name]
         by_table.setdefault(where, {})[field] = value
     lights = scene.lights
@@ -139,8 +147,10 @@ def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
     # radiometry only: what can block a shadow ray (occluders, convex bodies) stays as it is.
     # Found again, it would be lost wherever the scene is traced (a jitted derivative pass):
     # every triangle tested, every body by its triangles.
+    textures = (scene.textures if texels is None
+                else dataclasses.replace(scene.textures, texels=tuple(texels)))
     return scene.replace(materials=materials, lights=dataclasses.replace(lights, **light_tables),
-                         occluders=scene.occluders, convex=scene.convex)
+                         occluders=scene.occluders, convex=scene.convex, textures=textures)
 
 
 def _check(spp, sampler: str, name: str = "spp") -> int:

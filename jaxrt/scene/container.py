@@ -49,6 +49,7 @@ from jaxrt.geometry.eye_rays import eye_planes
 from jaxrt.geometry.occluders import shadow_blockers
 from jaxrt.scene import lights as lt
 from jaxrt.scene import materials as mt
+from jaxrt.scene import textures as tx
 
 
 class Mesh(NamedTuple):
@@ -57,7 +58,8 @@ class Mesh(NamedTuple):
     vertices: (V, 3) float; faces: (F, 3) int; material: a :class:`jaxrt.scene.materials.Material`;
     emission: (3,) radiance or None (not a light); a declared emission, even 0, makes the mesh
     a light, so the static structure follows what was declared, not the values;
-    two_sided_emission: emit on both sides.
+    two_sided_emission: emit on both sides; uv: (V, 2) texture coordinates per vertex or None;
+    textures: ``(field, texture)`` pairs (:mod:`jaxrt.scene.textures`), empty if untextured.
     """
 
     vertices: np.ndarray
@@ -66,14 +68,25 @@ class Mesh(NamedTuple):
     emission: np.ndarray | None = None
     two_sided_emission: bool = False
     name: str = "mesh"
+    uv: np.ndarray | None = None
+    textures: tuple = ()
+
+
+#: The material kinds that use each textured field.
+_FIELD_KINDS = {"kd": (mt.DIFFUSE, mt.PHONG), "ks": (mt.PHONG, mt.CONDUCTOR, mt.MIRROR),
+                "alpha": (mt.CONDUCTOR,)}
 
 
 def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emission=False,
-         name="mesh") -> Mesh:
+         name="mesh", uv=None, textures=None) -> Mesh:
     """Validate and wrap a mesh: finite vertices, integer faces inside the vertex array.
 
-    Raises ValueError naming the mesh and the problem (non-finite vertices, faces out of
-    range, wrong shapes, negative or non-finite emission).
+    ``uv``: (V, 2) per-vertex texture coordinates (``u`` along an image's width, ``v`` up its
+    height); ``textures``: a dict ``{field: texture}`` binding material fields ``"kd"``,
+    ``"ks"`` or ``"alpha"`` to :func:`jaxrt.scene.textures.texture` images (these override the
+    material's value of the field). Raises ValueError naming the mesh and the problem
+    (non-finite vertices, faces out of range, wrong shapes, negative or non-finite emission;
+    a textured mesh without UVs, a field its material does not use, texels out of range).
     """
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces)
@@ -100,7 +113,41 @@ def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emissi
             raise ValueError(f"mesh {name!r}: emission must be finite and >= 0, got {e.tolist()}")
         # a declared emission stays a light even at 0: the scene's static structure follows
         # what was declared, not the values, so a sweep of radiance through 0 compiles once
-    return Mesh(v, f.astype(np.int32), material, e, bool(two_sided_emission), name)
+    uv, bound = _mesh_textures(name, v, material, uv, textures)
+    return Mesh(v, f.astype(np.int32), material, e, bool(two_sided_emission), name, uv, bound)
+
+
+def _mesh_textures(name: str, v: np.ndarray, material: mt.Material, uv, textures):
+    """Validated ``(uv, ((field, texture), ...))`` of :func:`mesh`."""
+    if uv is not None:
+        uv = np.asarray(uv, np.float64)
+        if uv.shape != (len(v), 2) or not np.all(np.isfinite(uv)):
+            raise ValueError(f"mesh {name!r}: uv must be finite with shape ({len(v)}, 2) (one "
+                             f"pair per vertex), got shape {uv.shape}")
+    bound = tuple(sorted(dict(textures or {}).items()))
+    if bound and uv is None:
+        raise ValueError(f"mesh {name!r} is textured ({', '.join(f for f, _ in bound)}) but "
+                         "has no UVs: give uv= (a mesh file's vt / uv / TEXCOORD_0)")
+    kind = int(np.asarray(material.kind))
+    for field, tex in bound:
+        if field not in tx.FIELDS:
+            raise ValueError(f"mesh {name!r}: cannot texture {field!r}; textured fields: "
+                             f"{', '.join(tx.FIELDS)}")
+        if not isinstance(tex, tx.Texture):
+            raise ValueError(f"mesh {name!r}: textures[{field!r}] is a {type(tex).__name__}, "
+                             "expected a jaxrt.scene.textures.texture(...)")
+        if kind not in _FIELD_KINDS[field]:
+            raise ValueError(f"mesh {name!r}: a {mt.KIND_NAMES[kind]} material has no "
+                             f"{field!r} to texture")
+        top = float(np.max(tx.decoded(tex, field)))
+        rest = 0.0
+        if kind == mt.PHONG:  # kd + ks ≤ 1 wherever the texture reaches
+            other = "ks" if field == "kd" else "kd"
+            rest = float(np.max(np.asarray(getattr(material, other))))
+        if top + rest > 1:
+            raise ValueError(f"mesh {name!r}: texture {tex.name!r} for {field!r} reaches "
+                             f"{top:.4g}{' + ' + f'{rest:.4g}' if rest else ''} > 1")
+    return uv, bound
 
 
 @jax.tree_util.register_dataclass
@@ -126,6 +173,9 @@ class Scene:
             camera rays are tested by (:func:`jaxrt.geometry.eye_rays.eye_planes`, formed on the
             host), or None (a BVH, or arrays traced when the scene was made: the program forms
             them).
+        textures: the image textures (:class:`jaxrt.scene.textures.TextureTable`: texels traced,
+            which field of which material each drives static), or None: a scene without
+            textures compiles no texture code.
 
     ``occluders``, ``convex`` and ``eye_planes`` are derived from the other fields: change
     the scene with :meth:`replace`, which forms them again (or keeps what it is given). A
@@ -145,6 +195,7 @@ class Scene:
     occluders: Any = None
     convex: Any = None
     eye_planes: Any = None
+    textures: Any = None
 
     @property
     def width(self) -> int:
@@ -174,7 +225,7 @@ class Scene:
         if "occluders" not in changes and {"geometry", "triangles", "lights",
                                            "prim_material"} & set(changes):
             occluders, convex = shadow_blockers(new.geometry, new.triangles, new.lights,
-                                                new.prim_material)
+                                                _face_materials(new.prim_material, new.textures))
             new = dataclasses.replace(new, occluders=occluders, convex=convex)
         if "eye_planes" not in changes and {"geometry", "camera"} & set(changes):
             new = dataclasses.replace(new, eye_planes=eye_planes(new.geometry, new.camera))
@@ -199,7 +250,7 @@ class Scene:
                 isinstance(a, jax.core.Tracer) for a in jax.tree.leaves(self)):
             return self
         occluders, convex = shadow_blockers(self.geometry, self.triangles, self.lights,
-                                            self.prim_material)
+                                            _face_materials(self.prim_material, self.textures))
         return _formed(dataclasses.replace(self, occluders=occluders, convex=convex,
                                            eye_planes=eye_planes(self.geometry, self.camera)))
 
@@ -213,7 +264,11 @@ class Scene:
             shadow += f" and {self.convex.count} convex bodies ({planes} planes)"
         return (f"Scene: {self.width}x{self.height} camera, {self.num_triangles} triangles "
                 f"({type(self.geometry).__name__}){shadow}, {self.materials.kind.shape[0]} "
-                f"materials [{kinds}], lights: {describe_lights(self.lights)}")
+                f"materials [{kinds}], lights: {describe_lights(self.lights)}"
+                + ("" if self.textures is None else
+                   f", textures: {len(self.textures.texels)} images driving "
+                   + ", ".join(f"{b.field} of material {b.material}"
+                               for b in self.textures.bindings)))
 
 
 #: Set on a scene made by :func:`build_scene` or :meth:`Scene.replace`: its derived fields
@@ -249,7 +304,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     """
     if len(meshes) == 0:
         raise ValueError("build_scene needs at least one mesh")
-    tris, mat_idx, mats = [], [], []
+    tris, mat_idx, mats, uvs, bindings = [], [], [], [], []
     emissive = []  # (first prim, count, radiance, two_sided) per emissive mesh
     offset = 0
     for i, m in enumerate(meshes):
@@ -260,12 +315,15 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         tris.append(t)
         mat_idx.append(np.full(len(t), i, np.int32))
         mats.append(m.material)
+        uvs.append(m.uv[m.faces] if m.textures else np.zeros((len(t), 3, 2)))
+        bindings += [(i, field, tex) for field, tex in m.textures]
         if m.emission is not None:
             emissive.append((offset, t, m.emission, m.two_sided_emission, m.name))
         offset += len(t)
     triangles = np.concatenate(tris)
     prim_material = np.concatenate(mat_idx)
     table, kinds = mt.material_table(mats)
+    textures = tx.texture_table(bindings, triangles, np.concatenate(uvs))
 
     light_list = list(extra_lights)
     for first, t, e, two, name in emissive:
@@ -303,11 +361,23 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         lights=light_table,
         camera=camera,
         material_kinds=kinds,
-        **dict(zip(("occluders", "convex"), shadow_blockers(geometry, stored, light_table,
-                                                                    prim_material),
-                   strict=True)),
+        **dict(zip(("occluders", "convex"),
+                   shadow_blockers(geometry, stored, light_table,
+                                   _face_materials(prim_material, textures)), strict=True)),
         eye_planes=eye_planes(geometry, camera),
+        textures=textures,
     ))
+
+
+def _face_materials(prim_material, textures):
+    """What a convex body's face must share (:func:`shadow_blockers`): the material, and on a
+    textured material the triangle itself (a closest hit on a face knows one of its
+    triangles, whose UV map would be extrapolated over the others')."""
+    if textures is None or isinstance(prim_material, jax.core.Tracer):
+        return prim_material
+    pm = np.asarray(prim_material)
+    own = np.isin(pm, sorted(tx.bound_rows(textures.bindings)))
+    return np.where(own, pm.max() + 1 + np.arange(len(pm)), pm)
 
 
 def shading_scene(material: mt.Material, lights: Sequence[Any], occluders: Sequence[Mesh] = (),
@@ -396,4 +466,6 @@ def guard_geometry(scene: Scene) -> Scene:
         geometry=jax.tree.map(lambda a: guard(a, "the scene geometry (acceleration structure)"),
                               scene.geometry),
         triangles=guard(scene.triangles, "the scene's triangle vertices"),
-        lights=dataclasses.replace(lights, **tables), camera=camera)
+        lights=dataclasses.replace(lights, **tables), camera=camera,
+        textures=None if scene.textures is None else dataclasses.replace(
+            scene.textures, uv_map=guard(scene.textures.uv_map, "the texture coordinates")))

@@ -26,7 +26,13 @@ RGB triple is)::
         {"file": "lamp.ply", "material": "white", "emission": [10, 10, 10],
          "two_sided_emission": false,
          "transform": {"scale": 2.0, "rotate": [0, 1, 0, 90], "translate": [0, 1, 0]}},
-        {"vertices": [[...], ...], "faces": [[0, 1, 2], ...], "material": "white"}
+        {"vertices": [[...], ...], "faces": [[0, 1, 2], ...], "material": "white"},
+        {"file": "floor.obj", "material": "white",  # UVs from the file (vt lines)
+         "textures": {"kd": "checker.png",          # or {"file": ..., "wrap": "clamp",
+                      "alpha": {"file": "rough.exr", "wrap": "repeat"}}},
+                                                    #     "filter", "encoding"}
+        {"vertices": [...], "faces": [...], "uv": [[0, 0], ...], "material": "white",
+         "textures": {"kd": "checker.png"}}
       ],
       "lights": [
         {"type": "point", "position": [0, 2, 0], "intensity": 10},
@@ -43,6 +49,14 @@ RGB triple is)::
 ``transform`` applies scale, then a rotation (axis x, y, z and angle in degrees), then a
 translation. A mesh's ``material`` overrides the file's materials; its ``emission`` overrides
 the file's emission (``Ke`` in MTL, emissive factor in glTF).
+
+``textures`` bind material fields (``kd``, ``ks``, ``alpha``) of a mesh to PNG or EXR images
+(:mod:`jaxrt.scene.textures`): ``wrap`` "repeat" (default) or "clamp", ``filter``
+"bilinear" (default) or "nearest", ``encoding`` "auto" (default: 8-bit colour maps are
+sRGB, the rest linear), "srgb" or "linear". The same file with the same options is one
+texture (one array of texels) wherever it is used. A textured mesh needs UVs (its file's,
+or ``uv`` of an inline mesh); a missing texture file, a bad option or missing UVs is a
+``FileFormatError`` (a ValueError) naming the entry, raised before the scene is built.
 
 Unknown keys are an error at every level (``meshes[0]: unknown key 'transfrom' (did you mean
 'transform'?)``), so a typo cannot silently drop a setting; keys that start with ``_`` are
@@ -63,6 +77,7 @@ import numpy as np
 from jaxrt.scene import camera as cm
 from jaxrt.scene import lights as lt
 from jaxrt.scene import materials as mt
+from jaxrt.scene import textures as tx
 from jaxrt.scene.container import Scene, build_scene, mesh
 from jaxrt.scene.images import FileFormatError, read_exr
 from jaxrt.scene.meshio import MaterialSpec, load_meshes
@@ -72,9 +87,11 @@ _TOP_KEYS = ("camera", "materials", "meshes", "lights", "options")
 _CAMERA_KEYS = ("eye", "target", "up", "fov", "fov_axis", "width", "height")
 _MATERIAL_KEYS = {"diffuse": ("albedo",), "phong": ("kd", "ks", "exponent"),
                   "conductor": ("alpha", "ks", "fresnel", "masking"), "mirror": ("ks",)}
-_MESH_KEYS = {"file": ("file", "material", "emission", "two_sided_emission", "transform"),
+_MESH_KEYS = {"file": ("file", "material", "emission", "two_sided_emission", "transform",
+                       "textures"),
               "inline": ("vertices", "faces", "material", "emission", "two_sided_emission",
-                         "transform", "name")}
+                         "transform", "name", "uv", "textures")}
+_TEXTURE_KEYS = ("file", "wrap", "filter", "encoding")
 _TRANSFORM_KEYS = ("scale", "rotate", "translate")
 _LIGHT_KEYS = {"point": ("position", "intensity"),
                "spot": ("position", "axis", "intensity", "inner_angle", "outer_angle"),
@@ -177,14 +194,47 @@ def _transform(ctx: _Ctx, t: dict | None, v: np.ndarray, where: str) -> np.ndarr
         ctx.fail(where, f"bad transform: {e}")
 
 
+def _textures(ctx: _Ctx, spec, where: str, base: Path, cache: dict) -> dict:
+    """``{field: Texture}`` of a mesh's ``textures`` entry (files read once per options)."""
+    if spec is None:
+        return {}
+    if not isinstance(spec, dict):
+        ctx.fail(where, f"expected an object of textures by field, got {json.dumps(spec)[:60]}")
+    out = {}
+    for field, entry in spec.items():
+        if field.startswith("_"):
+            continue
+        at = f"{where}.{field}"
+        if field not in tx.FIELDS:
+            ctx.fail(at, f"cannot texture {field!r}; textured fields: {', '.join(tx.FIELDS)}")
+        entry = {"file": entry} if isinstance(entry, str) else entry
+        ctx.check_keys(entry, _TEXTURE_KEYS, at, "a file name or an object")
+        name = ctx.get(entry, "file", at)
+        options = tuple(str(entry.get(k, d)) for k, d in
+                        (("wrap", "repeat"), ("filter", "bilinear"), ("encoding", "auto")))
+        path = base / str(name)
+        key = (str(path.resolve()), options)
+        if key not in cache:
+            if not path.is_file():
+                ctx.fail(at, f"texture file not found: {path}")
+            try:
+                cache[key] = tx.load_texture(path, *options)
+            except ValueError as e:  # a FileFormatError too: unreadable image, bad option
+                ctx.fail(at, str(e))
+        out[field] = cache[key]
+    return out
+
+
 def _missing(ctx: _Ctx, where: str, what: str, path: Path):
     raise FileNotFoundError(f"{ctx.path}: {where}: {what} not found: {path}")
 
 
-def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> list:
+def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path,
+            cache: dict) -> list:
     if not isinstance(entry, dict):
         ctx.fail(where, f"expected a mesh object, got {entry!r}")
     ctx.check_keys(entry, _MESH_KEYS["file" if "file" in entry else "inline"], where)
+    textures = _textures(ctx, entry.get("textures"), f"{where}.textures", base, cache)
     override = None
     if "material" in entry:
         name = entry["material"]
@@ -209,16 +259,24 @@ def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path) -> 
                 e = (emission if emission is not None
                      else md.material.emission if md.material.is_emitter else None)
                 two = two_sided or md.material.two_sided_emission
+                if textures and md.uv is None:
+                    ctx.fail(f"{where}.textures", f"{entry['file']} (mesh {md.name!r}) has no "
+                             "texture coordinates (vt lines, PLY s/t or u/v, glTF TEXCOORD_0)")
                 out.append(mesh(v, md.faces, mat, emission=e, two_sided_emission=two,
-                                name=f"{entry['file']}:{md.name}"))
+                                name=f"{entry['file']}:{md.name}", uv=md.uv,
+                                textures=textures))
         else:
             v = np.asarray(ctx.get(entry, "vertices", where), np.float64)
             f = np.asarray(ctx.get(entry, "faces", where))
             if override is None:
                 ctx.fail(where, "an inline mesh needs a 'material'")
             v = _transform(ctx, entry.get("transform"), v, f"{where}.transform")
+            if textures and "uv" not in entry:
+                ctx.fail(f"{where}.textures", "a textured inline mesh needs 'uv' (one [u, v] "
+                         "per vertex)")
+            uv = np.asarray(entry["uv"], np.float64) if "uv" in entry else None
             out.append(mesh(v, f, override, emission=emission, two_sided_emission=two_sided,
-                            name=entry.get("name", where)))
+                            name=entry.get("name", where), uv=uv, textures=textures))
     except FileFormatError:
         raise
     except (ValueError, TypeError) as e:
@@ -305,9 +363,9 @@ def load_scene(path: str | os.PathLike, *, accel: str | None = None, width: int 
     entries = ctx.get(doc, "meshes", "top level")
     if not isinstance(entries, list) or not entries:
         ctx.fail("meshes", "expected a non-empty list of meshes")
-    meshes = []
+    meshes, cache = [], {}
     for i, entry in enumerate(entries):
-        meshes += _meshes(ctx, entry, f"meshes[{i}]", materials, base)
+        meshes += _meshes(ctx, entry, f"meshes[{i}]", materials, base, cache)
     light_specs = doc.get("lights") or []
     if not isinstance(light_specs, list):
         ctx.fail("lights", "expected a list of lights")

@@ -30,6 +30,10 @@ PLY, and any geometry without a material (OBJ without MTL, glTF primitive withou
 
 OBJ has no two-sided emitters: ``two_sided_emission = False``.
 
+Texture coordinates (OBJ ``vt``, PLY ``s``/``t`` or ``u``/``v``, glTF ``TEXCOORD_0``) come
+back per vertex as ``MeshData.uv``; binding images to material fields is the scene loader's
+job (:mod:`jaxrt.scene.textures`), the files' own texture maps stay ignored.
+
 Nothing is dropped silently: degenerate triangles (a repeated index or zero area) are removed
 with a warning giving their count; non-triangle geometry (lines, points) is skipped with a
 warning. Bad input raises: a missing file ``FileNotFoundError``; an unreadable or malformed
@@ -128,12 +132,16 @@ class MeshData(NamedTuple):
       vertices: (V, 3) float32 numpy positions (transforms applied).
       faces: (F, 3) int32 numpy vertex indices, counter-clockwise seen from the front.
       material: its ``MaterialSpec``.
+      uv: (V, 2) float64 texture coordinates per vertex (OBJ ``vt``, PLY ``s``/``t`` or
+        ``u``/``v``, glTF ``TEXCOORD_0``; ``v`` up, as trimesh gives them), or None when the
+        file has none (for any part of the mesh).
     """
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     material: MaterialSpec
+    uv: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -506,7 +514,9 @@ def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
         faces = _nondegenerate(where, vertices, faces)
         material_name, spec = _material_of(where, geometry, gltf_entries)
         group = groups.setdefault((material_name, spec), [material_name or geometry_name])
-        group.append((vertices, faces))
+        uv = getattr(geometry.visual, "uv", None) if geometry.visual.kind == "texture" else None
+        uv = None if uv is None or len(uv) != len(vertices) else np.asarray(uv, np.float64)
+        group.append((vertices, faces, uv))
     if skipped:
         _warn(f"{path}: {len(skipped)} non-triangle geometr(y/ies) skipped: {', '.join(skipped)}")
     if not groups:
@@ -515,8 +525,11 @@ def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
     meshes = []
     for (_, spec), (name, *parts) in groups.items():
         # offset each part's indices by the vertices that precede it
-        offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
-        vertices = np.concatenate([v for v, _ in parts])
-        faces = np.concatenate([f + np.int32(o) for (_, f), o in zip(parts, offsets, strict=True)])
-        meshes.append(MeshData(str(name), vertices, faces.astype(np.int32), spec))
+        offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
+        vertices = np.concatenate([v for v, _, _ in parts])
+        faces = np.concatenate([f + np.int32(o)
+                                for (_, f, _), o in zip(parts, offsets, strict=True)])
+        uv = (None if any(t is None for _, _, t in parts)
+              else np.concatenate([t for _, _, t in parts]))
+        meshes.append(MeshData(str(name), vertices, faces.astype(np.int32), spec, uv))
     return meshes

@@ -7,11 +7,18 @@ emitter only (an ``area`` emitter inside it makes a sphere light); ``to_world`` 
 Mitsuba does (each one left-multiplies the ones before it); ``flip_normals``. BSDFs
 ``diffuse``, ``conductor`` (smooth: a mirror), ``roughconductor`` (``distribution="ggx"``) and
 ``twosided`` (its nested BSDF: jaxrt reflects on both sides anyway), inline or declared at the
-top level with an ``id`` and used through ``<ref id="..."/>``. Emitters ``area``, ``point``,
+top level with an ``id`` and used through ``<ref id="..."/>``. Textures: a nested
+``<texture type="bitmap">`` (``filename`` a PNG or EXR, ``filter_type`` "bilinear" or
+"nearest", ``wrap_mode`` "repeat" or "clamp", ``raw``) as a diffuse ``reflectance``, a
+conductor's ``specular_reflectance`` or a roughconductor's ``alpha``, on ``obj``, ``ply``
+and ``rectangle`` shapes (:mod:`jaxrt.scene.textures`; as Mitsuba, 8-bit images are
+sRGB-decoded unless ``raw``, EXR images are linear; the rectangle's UVs are Mitsuba's, the
+files' as trimesh reads them). Emitters ``area``, ``point``,
 ``spot``, ``directional``, ``constant`` and ``envmap`` (an EXR). A ``perspective`` sensor with
-``fov``/``fov_axis`` or ``focal_length`` and an ``hdrfilm``. ``<default>`` and ``$name``
-substitution. ``integrator`` and ``sampler`` elements are accepted and ignored, ``sampleCount``
-included (the estimator and its samples are chosen at render time).
+``fov``/``fov_axis`` or ``focal_length`` and an ``hdrfilm`` (an ``rfilter``, if given, must be
+``box``). ``<default>`` and ``$name`` substitution. ``integrator`` and ``sampler`` elements are
+accepted and ignored, ``sampleCount`` included (the estimator and its samples are chosen at
+render time).
 
 Everything else — an unknown tag, plugin type or property, a missing file, a malformed value,
 an unresolved ``$name``, a bad reference — is a :class:`~jaxrt.scene.images.FileFormatError` (a
@@ -32,6 +39,7 @@ import numpy as np
 from jaxrt.scene import camera as cm
 from jaxrt.scene import lights as lt
 from jaxrt.scene import materials as mt
+from jaxrt.scene import textures as tx
 from jaxrt.scene.container import Scene, build_scene, mesh
 from jaxrt.scene.images import FileFormatError, read_exr
 from jaxrt.scene.meshio import load_meshes
@@ -216,10 +224,16 @@ def _value(ctx: _Ctx, node: _Node):
 class _Props:
     """The named properties of a plugin element, and its nested plugins."""
 
-    def __init__(self, ctx: _Ctx, node: _Node, allowed, nested=(), ignored=()):
+    def __init__(self, ctx: _Ctx, node: _Node, allowed, nested=(), ignored=(), textured=()):
         self.ctx, self.node, self.values, self.where, self.plugins = ctx, node, {}, {}, []
         for c in node.children:
-            if c.tag in _PROPERTY_TAGS:
+            if c.tag == "texture" and textured:
+                name = ctx.attr(c, "name")
+                if name not in textured:
+                    ctx.fail(c, f"a texture as {name!r} is not modelled for {node} (textured: "
+                             f"{', '.join(textured)})")
+                self.values[name], self.where[name] = _bitmap(ctx, c), c
+            elif c.tag in _PROPERTY_TAGS:
                 name = ctx.attr(c, "name")
                 if name in ignored:
                     continue
@@ -240,6 +254,8 @@ class _Props:
                 self.ctx.fail(self.node, f"missing property {name!r}")
             return default
         v = self.values[name]
+        if isinstance(v, tx.Texture):
+            return v
         want = {"float": float, "rgb": np.ndarray, "string": str, "bool": bool,
                 "matrix": np.ndarray}.get(kind)
         if kind == "rgb" and isinstance(v, float):
@@ -259,7 +275,34 @@ def _try(ctx: _Ctx, node: _Node, make):
         ctx.fail(node, str(e))
 
 
-def _bsdf(ctx: _Ctx, node: _Node, named: dict) -> mt.Material:
+def _bitmap(ctx: _Ctx, node: _Node) -> tx.Texture:
+    """A ``<texture type="bitmap">`` as a :class:`jaxrt.scene.textures.Texture`."""
+    if ctx.attr(node, "type") != "bitmap":
+        ctx.fail(node, "only the bitmap texture is modelled")
+    p = _Props(ctx, node, ("filename", "filter_type", "wrap_mode", "raw"))
+    path = ctx.file(p.where.get("filename", node), p.get("filename", kind="string"),
+                    "texture file")
+    wrap = p.get("wrap_mode", "repeat", "string")
+    if wrap not in tx.WRAPS:
+        ctx.fail(p.where["wrap_mode"], f"wrap_mode {wrap!r} is not modelled (repeat, clamp)")
+    filt = p.get("filter_type", "bilinear", "string")
+    if filt not in tx.FILTERS:
+        ctx.fail(p.where["filter_type"], f"filter_type {filt!r} is not modelled (bilinear, "
+                 "nearest)")
+    # Mitsuba decodes an 8-bit (sRGB) bitmap to linear unless raw; EXR data is linear
+    linear = p.get("raw", False, "bool") or path.suffix.lower() == ".exr"
+    return _try(ctx, node, lambda: tx.load_texture(path, wrap, filt,
+                                                   "linear" if linear else "srgb"))
+
+
+def _split(values: dict) -> tuple[dict, dict]:
+    """(plain values, textures) of a BSDF's arguments."""
+    return ({k: v for k, v in values.items() if not isinstance(v, tx.Texture)},
+            {k: v for k, v in values.items() if isinstance(v, tx.Texture)})
+
+
+def _bsdf(ctx: _Ctx, node: _Node, named: dict) -> tuple[mt.Material, dict]:
+    """The material of a BSDF element and its textures ``{field: Texture}``."""
     if node.tag == "ref":
         ref = ctx.attr(node, "id")
         if ref not in named:
@@ -272,13 +315,17 @@ def _bsdf(ctx: _Ctx, node: _Node, named: dict) -> mt.Material:
             ctx.fail(node, "twosided takes exactly one nested BSDF")
         return _bsdf(ctx, p.plugins[0], named)
     if kind == "diffuse":
-        p = _Props(ctx, node, ("reflectance",))
-        return _try(ctx, node, lambda: mt.diffuse(p.get("reflectance", 0.5, "rgb")))
+        p = _Props(ctx, node, ("reflectance",), textured=("reflectance",))
+        kd = p.get("reflectance", 0.5, "rgb")
+        if isinstance(kd, tx.Texture):
+            return _try(ctx, node, lambda: mt.diffuse(0.5)), {"kd": kd}
+        return _try(ctx, node, lambda: mt.diffuse(kd)), {}
     if kind in ("conductor", "roughconductor"):
         rough = kind == "roughconductor"
         p = _Props(ctx, node, ("specular_reflectance", "material", "eta", "k")
                    + (("alpha", "alpha_u", "alpha_v", "distribution") if rough else ()),
-                   ignored=("sample_visible",))
+                   ignored=("sample_visible",),
+                   textured=("specular_reflectance",) + (("alpha",) if rough else ()))
         for key in ("eta", "k"):
             if key in p.values:
                 ctx.fail(p.where[key], "a complex IOR is not modelled: jaxrt's conductor takes "
@@ -287,15 +334,20 @@ def _bsdf(ctx: _Ctx, node: _Node, named: dict) -> mt.Material:
             ctx.fail(p.where["material"], "only material='none' (with specular_reflectance) "
                      "is modelled")
         ks = p.get("specular_reflectance", 1.0, "rgb")
+        textures = {"ks": ks} if isinstance(ks, tx.Texture) else {}
+        ks = 1.0 if textures else ks
         if not rough:
-            return _try(ctx, node, lambda: mt.mirror(ks))
+            return _try(ctx, node, lambda: mt.mirror(ks)), textures
         if p.get("distribution", "beckmann", "string") != "ggx":
             ctx.fail(node, "only distribution='ggx' is modelled (Mitsuba's default is beckmann)")
         a = p.get("alpha", 0.1, "float")
+        if isinstance(a, tx.Texture):
+            textures["alpha"], a = a, 0.1
         au, av = p.get("alpha_u", a, "float"), p.get("alpha_v", a, "float")
         if au != av:
             ctx.fail(node, "anisotropic roughness (alpha_u != alpha_v) is not modelled")
-        return _try(ctx, node, lambda: mt.conductor(au, ks, fresnel="none", masking="separable"))
+        return _try(ctx, node, lambda: mt.conductor(au, ks, fresnel="none",
+                                                    masking="separable")), textures
     ctx.fail(node, f"unsupported BSDF type {kind!r} (diffuse, conductor, roughconductor, "
              "twosided)")
 
@@ -305,6 +357,8 @@ _CUBE = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)],
 _CUBE_FACES = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                         [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
 _RECT = np.array([[-1, -1, 0], [1, -1, 0], [1, 1, 0], [-1, 1, 0]], np.float64)
+# Mitsuba's (0, 0), (1, 0), (1, 1), (0, 1), whose v runs down the image: jaxrt's v runs up
+_RECT_UV = np.array([[0, 1], [1, 1], [1, 0], [0, 0]], np.float64)
 
 
 def _shape(ctx: _Ctx, node: _Node, named: dict, meshes: list, lights: list):
@@ -347,22 +401,29 @@ def _shape(ctx: _Ctx, node: _Node, named: dict, meshes: list, lights: list):
                           "nothing: its BSDF is ignored", stacklevel=4)
         lights.append(_try(ctx, node, lambda: lt.sphere_light(m[:3, 3], rad, radiance)))
         return
-    mat = _bsdf(ctx, bsdfs[0], named) if bsdfs else mt.diffuse(0.5)
+    mat, textures = _bsdf(ctx, bsdfs[0], named) if bsdfs else (mt.diffuse(0.5), {})
     if kind in ("obj", "ply"):
         path = ctx.file(p.where.get("filename", node), p.get("filename", kind="string"),
                         "mesh file")
-        parts = _try(ctx, node, lambda: [(d.vertices, d.faces) for d in load_meshes(path)])
+        parts = _try(ctx, node, lambda: [(d.vertices, d.faces, d.uv)
+                                         for d in load_meshes(path)])
+    elif kind == "rectangle":
+        parts = [(_RECT, np.array([[0, 1, 2], [0, 2, 3]]), _RECT_UV)]
     else:
-        parts = [(_RECT, np.array([[0, 1, 2], [0, 2, 3]]))] if kind == "rectangle" else \
-            [(_CUBE, _CUBE_FACES)]
+        parts = [(_CUBE, _CUBE_FACES, None)]
+    if textures and any(uv is None for _, _, uv in parts):
+        ctx.fail(node, f"a textured {kind} needs texture coordinates"
+                 + (" (the file has none)" if kind in ("obj", "ply") else
+                    ": textures on a cube are not modelled"))
     # the normal follows to_world as a normal (inverse transpose), as Mitsuba's does:
     # a mirroring transform turns the winding over
     turn = flip != (np.linalg.det(m[:3, :3]) < 0)
-    for i, (v, f) in enumerate(parts):
+    for i, (v, f, uv) in enumerate(parts):
         v = np.asarray(v, np.float64) @ m[:3, :3].T + m[:3, 3]
         f = np.asarray(f)[:, ::-1] if turn else f
-        meshes.append(_try(ctx, node, lambda v=v, f=f, i=i: mesh(
-            v, f, mat, emission=radiance, name=f"{ctx.path.name}:{node.line}:{kind}{i}")))
+        meshes.append(_try(ctx, node, lambda v=v, f=f, i=i, uv=uv: mesh(
+            v, f, mat, emission=radiance, name=f"{ctx.path.name}:{node.line}:{kind}{i}",
+            uv=uv if textures else None, textures=textures)))
 
 
 def _emitter(ctx: _Ctx, node: _Node, lights: list):
@@ -416,6 +477,11 @@ def _sensor(ctx: _Ctx, node: _Node, width, height) -> cm.Camera:
             f = _Props(ctx, c, ("width", "height"), ("rfilter",), ignored=(
                 "pixel_format", "component_format", "file_format", "sample_border", "banner"))
             w, h = int(f.get("width", w, "float")), int(f.get("height", h, "float"))
+            for r in f.plugins:  # jaxrt averages the samples inside each pixel's square
+                if ctx.attr(r, "type") != "box":
+                    ctx.fail(r, "only the box reconstruction filter is modelled (jaxrt "
+                             "averages the samples in each pixel's square)")
+                _Props(ctx, r, ())
     w, h = int(width or w), int(height or h)
     if "fov" in p.values:
         if "focal_length" in p.values:

@@ -21,6 +21,7 @@ from jaxrt.geometry.spawn import short_of
 from jaxrt.geometry.triangle import TriangleSet, any_hit, closest_hit, gamma, miss_hit
 from jaxrt.scene import lights as lt
 from jaxrt.scene import materials as mt
+from jaxrt.scene import textures as tx
 from jaxrt.scene.container import Scene
 
 MISS, TRIANGLE, SPHERE = 0, 1, 2  # what a ray hit (SurfaceHit.kind)
@@ -224,8 +225,13 @@ def _local_index(structure, kind: str, light: Array) -> tuple[Array, Array]:
 
 
 def material_at(scene: Scene, hit: SurfaceHit) -> mt.Material:
-    """The material row of a hit (one gather per field)."""
-    return jax.tree.map(lambda a: a[hit.material], scene.materials)
+    """The material row of a hit (one gather per field), its textured fields looked up at the
+    hit's texture coordinates (:func:`jaxrt.scene.textures.textured_material`; only in a
+    scene with textures: without, no texture code is traced)."""
+    m = jax.tree.map(lambda a: a[hit.material], scene.materials)
+    if scene.textures is None:
+        return m
+    return tx.textured_material(scene.textures, m, hit.material, hit.prim, hit.p)
 
 
 def shading_normal(ng: Array, wo: Array) -> Array:
