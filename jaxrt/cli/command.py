@@ -186,7 +186,7 @@ def _write(args, result, interrupted: bool = False) -> None:
                   "jaxrt.estimator": args.estimator, "jaxrt.sampler": args.sampler,
                   "jaxrt.seed": int(args.seed)}
     for name in ("light_samples", "bsdf_samples", "heuristic", "max_depth", "rr_depth",
-                 "ris_candidates"):
+                 "ris_candidates", "nee"):
         if getattr(args, name) is not None:  # what the user chose (defaults: the README's)
             value = getattr(args, name)
             attributes[f"jaxrt.{name}"] = value if isinstance(value, str) else int(value)
@@ -214,7 +214,7 @@ def _render(args) -> int:
     if args.process_id == 0:
         print(scene.summary(), flush=True)
     params = {k: getattr(args, k) for k in ("light_samples", "bsdf_samples", "heuristic",
-                                            "max_depth", "rr_depth", "ris_candidates")
+                                            "max_depth", "rr_depth", "ris_candidates", "nee")
               if getattr(args, k) is not None}
     return _render_interruptibly(args, scene, spp, params)
 
@@ -383,7 +383,11 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--rr-depth", type=_positive(int), default=None,
                    help="path: Russian roulette from this many bounces on (default: 5)")
     r.add_argument("--ris-candidates", type=_positive(int), default=None,
-                   help="ris: light samples resampled per shading point (default: 8)")
+                   help="ris, and path with --nee ris: light samples resampled per shading "
+                        "point (default: 8)")
+    r.add_argument("--nee", choices=("light", "ris"), default=None,
+                   help="path: next-event estimation by one light sample or by RIS "
+                        "(default: light)")
     r.add_argument("--time-budget", type=_positive(float), default=None, metavar="SECONDS",
                    help="stop after this many seconds of rendering (compilation excluded)")
     r.add_argument("--target-error", type=_positive(float), default=None, metavar="E",

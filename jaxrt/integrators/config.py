@@ -22,6 +22,8 @@ DIRECT_ESTIMATORS = ("uniform_hemisphere", "cosine_hemisphere", "bsdf", "light_a
 #: jaxrt.integrators.path).
 ESTIMATORS = DIRECT_ESTIMATORS + ("path",)
 HEURISTICS = ("balance", "power")
+#: The path tracer's next-event estimators (Estimator.nee).
+NEE = ("light", "ris")
 
 
 class Estimator(NamedTuple):
@@ -32,7 +34,10 @@ class Estimator(NamedTuple):
     light_prob: probability of choosing light sampling in one-sample MIS; max_depth,
     rr_depth: the path tracer's longest path in segments (−1: unbounded) and the depth from
     which Russian roulette ends paths (:mod:`jaxrt.integrators.path`, Mitsuba 3's convention);
-    ris_candidates: the light samples RIS resamples from (:mod:`jaxrt.integrators.ris`).
+    ris_candidates: the light samples RIS resamples from (:mod:`jaxrt.integrators.ris`);
+    nee: the path tracer's next-event estimation, "light" (one light sample) or "ris"
+    (``ris_candidates`` light samples resampled, one shadow ray, MIS-weighted against the
+    BSDF sample).
     """
 
     name: str = "mis"
@@ -43,6 +48,7 @@ class Estimator(NamedTuple):
     max_depth: int = -1
     rr_depth: int = 5
     ris_candidates: int = 8
+    nee: str = "light"
 
     @property
     def triangle_sampling(self) -> str | None:
@@ -94,9 +100,15 @@ def make_estimator(estimator: str | Estimator = "mis", **params) -> Estimator:
     v = est.ris_candidates
     if not isinstance(v, int | np.integer) or isinstance(v, bool) or v < 1:
         raise ValueError(f"ris_candidates must be an integer >= 1, got {v!r}")
-    if "ris_candidates" in params and est.name != "ris" \
+    if est.nee not in NEE:
+        raise ValueError(f"unknown next-event estimator {est.nee!r}; choose 'light' or 'ris'")
+    if est.nee != "light" and est.name != "path":
+        raise ValueError(f"nee applies to estimator='path' only, not {est.name!r}")
+    resamples = est.name == "ris" or est.nee == "ris"
+    if "ris_candidates" in params and not resamples \
             and v != Estimator._field_defaults["ris_candidates"]:
-        raise ValueError(f"ris_candidates applies to estimator='ris' only, not {est.name!r}")
+        raise ValueError("ris_candidates applies to estimator='ris' and to 'path' with "
+                         f"nee='ris' only, not {est.name!r}")
     est = est._replace(ris_candidates=int(v))
     if est.name == "path":
         if not (est.max_depth == -1 or est.max_depth >= 1):

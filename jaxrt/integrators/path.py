@@ -49,6 +49,15 @@ point on the light, b+2 to choose the light, b+3 for the roulette, the pair (b+4
 the BSDF. The first vertex's light and BSDF dimensions are those of ``mis`` (2–4 and 6–7),
 so ``max_depth=2`` renders the ``mis`` image from the same random numbers.
 
+Next-event estimation by RIS (``nee="ris"``, :func:`jaxrt.integrators.ris.resampled_light`):
+``ris_candidates`` = M light samples resampled by their unshadowed contribution, one shadow
+ray, the chosen sample weighted by MIS against the BSDF sample from the two sampling
+densities (light sampling's ``p_l``, not RIS's own density of the chosen point, which has no
+closed form): the BSDF sample's hits of emitters keep ``w_b`` from the same two densities,
+so the weights still sum to one. Vertex k then uses ``6 + 3 (M − 1) + 1`` dimensions: the
+six above (candidate 0 on the light's three), then three per further candidate and one for
+the choice.
+
 Batching without waste: a step of the walk is one segment — scatter at the current vertex
 (NEE, BSDF sample, roulette), trace the continuing ray, add the emission it finds. Vmapped
 over the lanes of a pass, a ``lax.while_loop`` of steps runs in lockstep, so one path per
@@ -89,6 +98,7 @@ import jax.numpy as jnp
 from jax import Array, lax
 
 from jaxrt.core.vecmath import computed_once
+from jaxrt.integrators.ris import resampled_light
 from jaxrt.integrators.terms import (
     ShadingPoint,
     Stream,
@@ -96,6 +106,7 @@ from jaxrt.integrators.terms import (
     camera_ray,
     light_term,
     mis_weight,
+    receiver_normal,
     shading_point,
     trace_from,
 )
@@ -111,12 +122,21 @@ DIMS_PER_VERTEX = 6
 MAX_SEGMENTS = 1 << 16
 
 
-def path_dims(max_depth: int) -> int | None:
+def vertex_dims(est: Estimator) -> int:
+    """Random dimensions per path vertex: :data:`DIMS_PER_VERTEX`, plus 3 per further RIS
+    candidate and 1 for the choice among them when ``est.nee == "ris"`` (module notes)."""
+    if est.nee == "ris":
+        return DIMS_PER_VERTEX + 3 * (est.ris_candidates - 1) + 1
+    return DIMS_PER_VERTEX
+
+
+def path_dims(max_depth: int, per_vertex: int = DIMS_PER_VERTEX) -> int | None:
     """Random dimensions of one camera sample of a path of at most ``max_depth`` segments
-    (None when unbounded): 2 for the pixel, :data:`DIMS_PER_VERTEX` per scattering vertex."""
+    (None when unbounded): 2 for the pixel, ``per_vertex`` (:func:`vertex_dims`) per
+    scattering vertex."""
     if max_depth < 0:
         return None
-    return 2 + DIMS_PER_VERTEX * max(max_depth - 1, 0)
+    return 2 + per_vertex * max(max_depth - 1, 0)
 
 
 class PathState(NamedTuple):
@@ -137,6 +157,7 @@ class Segment(NamedTuple):
     p: Array  # (3,) the vertex it leaves (light-sampling pdf of d is taken there)
     pdf_bsdf: Array  # () density of d under BSDF sampling
     unweighted: Array  # () bool: its emission takes weight 1 (delta lobe, camera ray)
+    n: Array | None = None  # (3,) the vertex's normal, where light selection depends on it
 
 
 def _can_scatter(est: Estimator, hit, vertex: Array) -> Array:
@@ -144,19 +165,35 @@ def _can_scatter(est: Estimator, hit, vertex: Array) -> Array:
     return (hit.kind == TRIANGLE) & (vertex < depth)
 
 
+def _ris_nee(scene: Scene, est: Estimator, st: PathState, s: Stream, base: Array) -> Array:
+    """Next-event estimation by RIS (``est.nee == "ris"``), MIS-weighted against the BSDF
+    sample: candidate 0 on light sampling's dimensions ``base … base + 2``, candidate
+    ``k ≥ 1`` on ``base + 6 + 3 (k − 1) …``, the choice on the dimension after them."""
+    more = lambda k: base + DIMS_PER_VERTEX + 3 * (k - 1)
+    dims = lambda k: (jnp.where(k == 0, base, more(k)), jnp.where(k == 0, base + 2, more(k) + 2))
+    return resampled_light(scene, st.x, s, est.ris_candidates, dims, more(est.ris_candidates),
+                           heuristic=est.heuristic)
+
+
 def scatter(scene: Scene, est: Estimator, st: PathState, s: Stream) -> tuple[PathState, Segment]:
     """At ``st.x``: next-event estimation, then the BSDF sample that continues the path and
     Russian roulette. Returns the state with NEE added, β updated (``active`` False when the
     path ends here) and the segment to trace. Lanes with ``st.active`` False are unchanged."""
-    base = 2 + DIMS_PER_VERTEX * (st.vertex - 1)
-    tl = light_term(scene, st.x, s.u2(base), s.u1(base + 2))
-    wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, 1, tl.pdf_light, 1, tl.pdf_bsdf))
-    # stored once, as in `arrive`: fused into the (3,) radiance below, the weight (both pdfs,
-    # the light's table rows gathered) would be computed per component
-    # (benchmarks/README.md#computed-once)
-    wl = computed_once(wl)
+    base = 2 + vertex_dims(est) * (st.vertex - 1)
+    if est.nee == "ris":
+        radiance = st.radiance + jnp.where(st.active, st.beta * _ris_nee(scene, est, st, s, base),
+                                           0)
+    else:
+        tl = light_term(scene, st.x, s.u2(base), s.u1(base + 2))
+        wl = jnp.where(tl.is_delta, 1, mis_weight(est.heuristic, 1, tl.pdf_light, 1,
+                                                  tl.pdf_bsdf))
+        # stored once, as in `arrive`: fused into the (3,) radiance below, the weight (both
+        # pdfs, the light's table rows gathered) would be computed per component
+        # (benchmarks/README.md#computed-once)
+        wl = computed_once(wl)
+        radiance = st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0)
     # read by the state and, when the path ends here, by the fold into the pixel's four sums
-    radiance = computed_once(st.radiance + jnp.where(st.active, st.beta * wl * tl.value, 0))
+    radiance = computed_once(radiance)
     b = bsdf_direction(scene, st.x, s.u2(base + 4))
     beta = st.beta * b.weight
     active = st.active
@@ -164,14 +201,14 @@ def scatter(scene: Scene, est: Estimator, st: PathState, s: Stream) -> tuple[Pat
         beta, active = _roulette(beta, active, st.vertex >= est.rr_depth, s.u1(base + 3))
     active = active & (jnp.max(beta) > 0)
     beta = jnp.where(st.active, beta, st.beta)
-    seg = Segment(b.o, b.wi, st.x.hit.p, b.pdf, b.is_delta)
+    seg = Segment(b.o, b.wi, st.x.hit.p, b.pdf, b.is_delta, receiver_normal(scene, st.x.n))
     return st._replace(beta=beta, radiance=radiance, active=active), seg
 
 
 def arrive(scene: Scene, est: Estimator, st: PathState, seg: Segment) -> PathState:
     """Trace ``seg`` (for paths still active), add the emission found with its MIS weight
     against light sampling at ``seg.p``, and move to the vertex hit."""
-    a = trace_from(scene, seg.p, seg.o, seg.d)
+    a = trace_from(scene, seg.p, seg.o, seg.d, n=seg.n)
     w = jnp.where(seg.unweighted, 1, mis_weight(est.heuristic, 1, seg.pdf_bsdf, 1, a.pdf_light))
     # stored once: fused into the (3,) sum below, the weight (the light's pdf at the hit, its
     # table rows gathered) would be computed per component (stored: path pass 1.03× as fast)
@@ -294,7 +331,10 @@ def pass_sums(scene: Scene, est: Estimator, stream: Callable[[Array, Array], Str
         k = jnp.where(ended, k + 1, k)
         # stored scalars: the direction feeds the select below (camera.generate_ray)
         o, d = camera_ray(scene, pixel, stream(pixel, k), stored=True)
-        seg = _where(ended, Segment(o, d, o, jnp.zeros((), dtype), jnp.bool_(True)), seg)
+        # (a camera ray's emission is unweighted: its normal, zero, is never read)
+        camera = Segment(o, d, o, jnp.zeros((), dtype), jnp.bool_(True),
+                         receiver_normal(scene, jnp.zeros(3, dtype)))
+        seg = _where(ended, camera, seg)
         st = _where(ended, PathState(st.x, jnp.ones(3, dtype), jnp.zeros(3, dtype),
                                      jnp.int32(0), k < count), st)
         return _Lane(pixel, k, arrive(scene, est, st, seg), acc)

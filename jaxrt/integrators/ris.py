@@ -28,13 +28,22 @@ among the candidates takes ``2 + 3M``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax
 import jax.numpy as jnp
 from jax import Array, lax
 
 from jaxrt.integrators.config import Estimator
-from jaxrt.integrators.terms import ShadingPoint, Stream, light_candidate, light_visible
+from jaxrt.integrators.terms import (
+    ShadingPoint,
+    Stream,
+    light_candidate,
+    light_visible,
+    mis_weight,
+)
 from jaxrt.scene import lights as lt
+from jaxrt.scene import materials as mt
 from jaxrt.scene.container import Scene
 
 
@@ -48,26 +57,49 @@ def resampling_weight(target: Array, pdf: Array) -> Array:
     return jnp.where((pdf > 0) & (target > 0), target / jnp.where(pdf > 0, pdf, 1), 0)
 
 
-def ris(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
-    """``F = f(y)/p̂(y) · (1/M) Σ w_k`` (3,) at shading point ``x``, ``M = est.ris_candidates``
-    light samples resampled by their unshadowed luminance, one shadow ray."""
-    m = est.ris_candidates
+def resampled_light(scene: Scene, x: ShadingPoint, s: Stream, m: int,
+                    dims: Callable[[int], tuple[int, int]], choice_dim: int,
+                    heuristic: str | None = None) -> Array:
+    """``F = f(y)/p̂(y) · (1/M) Σ w_k`` (3,) at ``x`` from ``m`` candidates: candidate ``k``
+    samples its light point from ``s.u2(dims(k)[0])`` and chooses its light with
+    ``s.u1(dims(k)[1])``; ``s.u1(choice_dim)`` picks among them.
+
+    ``heuristic`` (static): ``None`` for direct light alone; ``"balance"`` or ``"power"`` when
+    BSDF-sampled hits of the lights are counted too (the path tracer's next-event estimation):
+    the integrand is then ``f · w_l`` with ``w_l`` the MIS weight of the chosen light sample
+    against BSDF sampling, from the light-sampling density ``p`` (1 for delta lights). The
+    BSDF hits take ``w_b = 1 − w_l`` from the same two densities, so the two sum to the
+    integrand wherever either can sample it: unbiased, whatever RIS's own density of ``y``.
+    """
 
     def candidate(k):
-        c = light_candidate(scene, x, s.u2(2 + 3 * k), s.u1(4 + 3 * k))
+        point_dim, select_dim = dims(k)
+        c = light_candidate(scene, x, s.u2(point_dim), s.u1(select_dim))
         target = lax.stop_gradient(lt.luminance(c.unshadowed))
-        return c.sample, c.unshadowed, target, resampling_weight(target, c.sample.pdf)
+        return c, target, resampling_weight(target, c.sample.pdf)
 
-    cands, unshadowed, target, weight = jax.vmap(candidate)(jnp.arange(m))
+    cands, target, weight = jax.vmap(candidate)(jnp.arange(m))
     total = jnp.sum(weight)
     # the candidate j with Σ_{k<j} w_k ≤ u Σ w < Σ_{k≤j} w_k (the last one with weight > 0
     # at the top end, where rounding could leave u Σ w above the running sum)
     cumulative = jnp.cumsum(weight)
-    j = jnp.sum(cumulative <= s.u1(2 + 3 * m) * total).astype(jnp.int32)
+    j = jnp.sum(cumulative <= s.u1(choice_dim) * total).astype(jnp.int32)
     last = m - 1 - jnp.argmax((weight > 0)[::-1]).astype(jnp.int32)
     j = jnp.minimum(j, last)
     chosen = jax.tree.map(lambda a: a[j], cands)
-    visible = light_visible(scene, x, chosen)
+    visible = light_visible(scene, x, chosen.sample)
     t = target[j]
-    value = unshadowed[j] / jnp.where(t > 0, t, 1) * (total / m)
+    value = chosen.unshadowed / jnp.where(t > 0, t, 1) * (total / m)
+    if heuristic is not None:
+        pdf_bsdf = lax.stop_gradient(mt.bsdf_pdf(x.material, x.wo_local, chosen.wi_local,
+                                                 scene.material_kinds))
+        w = mis_weight(heuristic, 1, chosen.sample.pdf, 1, pdf_bsdf)
+        value = value * jnp.where(chosen.sample.is_delta, 1, w)
     return jnp.where(visible & (total > 0) & (t > 0), value, 0)
+
+
+def ris(scene: Scene, est: Estimator, x: ShadingPoint, s: Stream) -> Array:
+    """``F = f(y)/p̂(y) · (1/M) Σ w_k`` (3,) at shading point ``x``, ``M = est.ris_candidates``
+    light samples resampled by their unshadowed luminance, one shadow ray."""
+    m = est.ris_candidates
+    return resampled_light(scene, x, s, m, lambda k: (2 + 3 * k, 4 + 3 * k), 2 + 3 * m)

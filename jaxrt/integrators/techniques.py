@@ -19,7 +19,7 @@ from jax import Array
 
 from jaxrt.integrators.config import Estimator
 from jaxrt.integrators.direct import DIRECT_TECHNIQUES
-from jaxrt.integrators.path import path, path_dims
+from jaxrt.integrators.path import path, path_dims, vertex_dims
 from jaxrt.integrators.ris import ris_dims
 from jaxrt.integrators.terms import Stream, camera_ray, shading_point
 from jaxrt.scene.container import Scene
@@ -48,7 +48,8 @@ def _direct_dims(est: Estimator) -> int:
 #: name → :class:`Technique`, for every estimator
 TECHNIQUES: dict[str, Technique] = {
     **{name: Technique(fn, _direct_dims) for name, fn in DIRECT_TECHNIQUES.items()},
-    "path": Technique(path, lambda est: path_dims(est.max_depth), regenerates=True),
+    "path": Technique(path, lambda est: path_dims(est.max_depth, vertex_dims(est)),
+                      regenerates=True),
 }
 
 

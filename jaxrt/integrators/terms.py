@@ -109,22 +109,30 @@ class Arrival(NamedTuple):
     pdf_light: Array  # () solid-angle pdf of d under light sampling at p (detached)
 
 
+def receiver_normal(scene: Scene, n: Array) -> Array | None:
+    """``n`` where the scene's light selection depends on the receiver normal (the light
+    BVH), else ``None``: the other selections carry no normal through their pdfs."""
+    return n if scene.lights.structure.selection == "bvh" else None
+
+
 def trace_from(scene: Scene, p: Array, o: Array, d: Array,
-               emission_only: bool = False) -> Arrival:
+               emission_only: bool = False, n: Array | None = None) -> Arrival:
     """Trace ``o + t d`` (``o``: ``p`` offset off its surface, ``d`` unit) to its emitter.
 
     ``emission_only`` (static): the caller uses only ``le`` and ``pdf_light`` (a direct
     estimator), not the surface hit: fewer triangles are tested
-    (:func:`jaxrt.scene.queries.intersect`)."""
+    (:func:`jaxrt.scene.queries.intersect`). ``n``: the normal at ``p`` light sampling was
+    given there (:func:`receiver_normal`), for ``pdf_light``."""
     h = intersect(scene, o, d, jnp.asarray(jnp.inf, o.dtype), emission_only=emission_only)
-    pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, p, d, h.light, h.p))
+    pdf_light = lax.stop_gradient(lt.pdf_li(scene.lights, p, d, h.light, h.p, n))
     return Arrival(emitted(scene, h, -d), h, pdf_light)
 
 
 def _trace_emission(scene: Scene, x: ShadingPoint, wi: Array) -> Array:
     """``L_e(r(x, wi), −wi)``: the emitted radiance found along wi (environment on a miss)."""
     o, d = spawn_ray(x.hit.p, x.n, wi, x.hit.p_error)
-    return trace_from(scene, x.hit.p, o, d, emission_only=True).le
+    return trace_from(scene, x.hit.p, o, d, emission_only=True,
+                      n=receiver_normal(scene, x.n)).le
 
 
 def direction_sample(scene: Scene, x: ShadingPoint, wi_local: Array, pdf: Array) -> Array:
@@ -223,7 +231,8 @@ def bsdf_direction(scene: Scene, x: ShadingPoint, u: Array) -> BSDFDirection:
 def bsdf_term(scene: Scene, x: ShadingPoint, u: Array) -> _BSDFTerm:
     """Sample the BSDF, trace to the emitter found, and form its estimate and both pdfs."""
     b = bsdf_direction(scene, x, u)
-    a = trace_from(scene, x.hit.p, b.o, b.wi, emission_only=True)
+    a = trace_from(scene, x.hit.p, b.o, b.wi, emission_only=True,
+                   n=receiver_normal(scene, x.n))
     return _BSDFTerm(b.weight * a.le, b.pdf, a.pdf_light, b.is_delta)
 
 

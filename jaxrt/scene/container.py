@@ -298,7 +298,8 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     light 10× smaller 1.55× more efficient; with it 3.5× larger (12× the area, close to the
     walls) solid angle has 1.5× less variance and the two are even (0.96×) — see
     benchmarks/README.md#light-sampling.
-    ``light_selection``: "uniform" | "power".
+    ``light_selection``: "uniform" | "power" | "bvh" (a light BVH: each light chosen by its
+    importance at the shading point, for scenes of many lights; :mod:`jaxrt.scene.lights.bvh`).
 
     With no light at all the scene renders black: a warning says so.
     """

@@ -174,3 +174,38 @@ def constant_environment_irradiance(radiance: Array) -> Array:
 def lambertian_radiance(albedo: Array, irradiance: Array) -> Array:
     """Radiance reflected by a Lambertian surface, ``L_r = ρ E / π``, in every direction."""
     return albedo * irradiance / jnp.pi
+
+
+def polygon_lamp_grid(k: int = 4, size: float = 0.12, height: float = 1.0,
+                      spread: float = 1.6):
+    """A many-light case with a closed form: ``k × k`` square lamps of half-width ``size``
+    facing down (−z) at ``height``, centres on the grid ``[−spread, spread]²``, radiance
+    ``1 … 40`` increasing across the grid (the bright ones far off to one side of the origin).
+
+    Returns host arrays ``(quads (k², 4, 3), radiance (k²,))``; the reflection of a receiver
+    below them is :func:`polygons_lambertian_radiance`.
+    """
+    import numpy as np
+
+    xs = np.linspace(-spread, spread, k)
+    quads, radiance = [], []
+    for i, x in enumerate(xs):
+        for j, y in enumerate(xs):
+            radiance.append(1.0 + 39.0 * (i * k + j) / max(k * k - 1, 1))
+            quads.append([[x - size, y - size, height], [x - size, y + size, height],
+                          [x + size, y + size, height], [x + size, y - size, height]])
+    return np.asarray(quads, np.float64), np.asarray(radiance, np.float64)
+
+
+def polygons_lambertian_radiance(quads, radiance, albedo: float, p, n) -> float:
+    """``L_r = ρ/π Σ_i L_i Ω⊥_i``: a Lambertian receiver at ``p`` (normal ``n``) under
+    uniformly emitting polygons none of which occludes another, in float64 (Lambert's formula
+    per polygon, :func:`polygon_projected_solid_angle`). ``quads`` (N, V, 3), ``radiance`` (N,)."""
+    import jax
+    import numpy as np
+
+    with jax.enable_x64(True):
+        psa = jax.vmap(polygon_projected_solid_angle, (0, None, None))(
+            jnp.asarray(np.asarray(quads, np.float64)), jnp.asarray(np.asarray(p, np.float64)),
+            jnp.asarray(np.asarray(n, np.float64)))
+        return float(albedo / np.pi * np.sum(np.asarray(radiance) * np.asarray(psa)))

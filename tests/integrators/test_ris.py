@@ -29,23 +29,13 @@ Z = np.array([0.0, 0.0, 1.0])
 WO = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
 
 
-def _lamp_grid(k=4, size=0.12, height=1.0, spread=1.6):
-    """``k × k`` small quads facing down at ``height``, radiances 1 … 40 across the grid
-    (the bright ones far off to one side): meshes and the exact diffuse reflection at 0."""
-    meshes, exact = [], 0.0
-    xs = np.linspace(-spread, spread, k)
-    for i, x in enumerate(xs):
-        for j, y in enumerate(xs):
-            radiance = 1.0 + 39.0 * (i * k + j) / (k * k - 1)
-            q = np.array([[x - size, y - size, height], [x - size, y + size, height],
-                          [x + size, y + size, height], [x + size, y - size, height]])
-            meshes.append(mesh(q, [[0, 1, 2], [0, 2, 3]], mt.diffuse(0.0), emission=radiance,
-                               name=f"lamp {i},{j}"))
-            with jax.enable_x64(True):
-                psa = float(analytic.polygon_projected_solid_angle(
-                    jnp.asarray(q), jnp.zeros(3), jnp.asarray(Z)))
-            exact += radiance * psa
-    return meshes, ALBEDO * exact / np.pi
+def _lamp_grid(**grid):
+    """The lamps of :func:`jaxrt.validation.analytic.polygon_lamp_grid` as meshes, and the
+    exact diffuse reflection at 0."""
+    quads, radiance = analytic.polygon_lamp_grid(**grid)
+    meshes = [mesh(q, [[0, 1, 2], [0, 2, 3]], mt.diffuse(0.0), emission=r, name=f"lamp {i}")
+              for i, (q, r) in enumerate(zip(quads, radiance, strict=True))]
+    return meshes, analytic.polygons_lambertian_radiance(quads, radiance, ALBEDO, np.zeros(3), Z)
 
 
 @pytest.fixture(scope="module")
@@ -137,5 +127,5 @@ def test_a_broken_resampling_is_caught(grid, monkeypatch, broken):
 def test_ris_options_are_checked(params, match):
     with pytest.raises(ValueError, match=match):
         make_estimator("ris", **params)
-    with pytest.raises(ValueError, match="applies to estimator='ris' only"):
+    with pytest.raises(ValueError, match="applies to estimator='ris' and to 'path' with nee='ris'"):
         make_estimator("mis", ris_candidates=4)

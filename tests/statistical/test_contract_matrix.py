@@ -3,7 +3,8 @@
 Three factors span the configuration space:
 
 - the lights (:data:`LIGHTS`): each kind alone (point, spot, directional, sphere, constant
-  and map environment, emissive triangles) and all of them together;
+  and map environment, emissive triangles) and all of them together, chosen by power and,
+  once more, by the light BVH (``light_selection="bvh"``);
 - the geometry path (:data:`GEOMETRY`): a lone plane (nothing can block a shadow ray), an
   open mesh and a closed non-convex mesh tested triangle by triangle, a convex body tested
   by its face planes, and a BVH; every brute-force scene's camera rays take the shared-origin
@@ -12,7 +13,7 @@ Three factors span the configuration space:
   all four at once on the floor's tiles.
 
 :data:`CELLS` crosses lights with geometry (every pair) and gives each cell a material such
-that every (light, material) and (geometry, material) pair occurs too: 40 scenes, each
+that every (light, material) and (geometry, material) pair occurs too: 45 scenes, each
 rendered by all 9 estimators (16 × 16 pixels, 512 spp). In every cell every estimator renders
 without an exception and without a non-finite sample. The estimators unbiased for the cell
 agree with MIS on the image mean within 5σ per channel (σ from the two renders' per-pixel
@@ -55,7 +56,7 @@ from jaxrt.scene.materials import conductor, diffuse, mirror, phong
 SPP = 512
 SIZE = 16
 DELTA_LIGHTS = {"point", "spot", "directional"}
-OUTSIDE_LIGHTS = {"directional", "constant_env", "map_env", "mixed"}
+OUTSIDE_LIGHTS = {"directional", "constant_env", "map_env", "mixed", "mixed_bvh"}
 #: lights under which the floating box is tested triangle by triangle, not as a convex body
 #: (no shadow-ray list is made). A point light in the plane of one of the box's faces (the
 #: spot at z = 0.2 did) takes that face out of the list, since a segment to the light meets
@@ -126,7 +127,11 @@ LIGHTS = {
                       sphere_light([0.4, 2.7, -0.6], 0.5, [0.8, 0.8, 0.8]),
                       environment_map(0.3 * _env_image())],
 }
-EMISSIVE_QUAD = {"triangles", "mixed"}
+#: the mixed lights again, chosen by the light BVH (its pmf depends on the shading point and
+#: normal: light sampling, MIS weights of BSDF hits and every path vertex use it)
+LIGHTS["mixed_bvh"] = LIGHTS["mixed"]
+SELECTION = {"mixed_bvh": "bvh"}
+EMISSIVE_QUAD = {"triangles", "mixed", "mixed_bvh"}
 
 #: the relative bias each comparison with MIS must resolve in every cell: 5σ of the image
 #: means' difference, over the mean, at most this (a bias of that size moves z by 5).
@@ -180,7 +185,8 @@ def cell_scene(light: str, geometry: str, material: str):
     cam = look_at(eye=[0.0, 2.2, 2.2], target=[0.0, 0.1, -0.1], up=[0, 1, 0], fov_deg=40,
                   width=SIZE, height=SIZE)
     return build_scene(meshes, cam, LIGHTS[light](),
-                       accel="bvh" if geometry == "bvh" else "brute")
+                       accel="bvh" if geometry == "bvh" else "brute",
+                       light_selection=SELECTION.get(light, "power"))
 
 
 def _assert_geometry_path(scene, light: str, geometry: str):
@@ -206,7 +212,7 @@ def _assert_geometry_path(scene, light: str, geometry: str):
 def _unbiased(light: str, material: str) -> set[str]:
     """The estimators whose expectation is the cell's image (see the module docstring)."""
     delta_bsdf = material in ("mirror", "mixed")
-    delta_light = light in DELTA_LIGHTS or light == "mixed"
+    delta_light = light in DELTA_LIGHTS or light.startswith("mixed")
     ok = {"mis", "mis_one_sample", "path"}
     if not delta_bsdf:
         ok |= {"light_area", "light_solid_angle", "ris"}

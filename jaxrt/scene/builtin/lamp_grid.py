@@ -4,7 +4,10 @@ A 4 × 4 m room (floor, back wall, two side walls) and a glossy floor with two b
 lit by ``rows × rows`` small square lamps on the ceiling (two triangles each: 1 152 emissive
 triangles at the default 24 × 24). The lamps' radiances span two orders of magnitude, the
 brightest along the far wall: power selection sends most shadow rays there, wherever the
-shading point is, though the lamps overhead contribute most to it. Resampled importance
+shading point is, though the lamps overhead contribute most to it. The light BVH
+(``light_selection="bvh"``) weighs lamps by their distance and orientation at the point.
+The camera looks down at the floor: the lamps themselves are out of view (their pixels'
+own footprint noise would hide the light selection's). Resampled importance
 sampling (``estimator="ris"``) chooses among several candidates by what they contribute.
 """
 
@@ -34,8 +37,12 @@ def _box(lo, hi):
     return v, f
 
 
-def lamp_grid(width: int = 256, height: int = 192, rows: int = 24, **options):
+def lamp_grid(width: int = 256, height: int = 192, rows: int = 24, glossy: bool = True,
+              **options):
     """The room under ``rows × rows`` ceiling lamps (``2 rows²`` emissive triangles).
+
+    ``glossy``: a Phong floor and a GGX metal block (the default); ``False`` makes both
+    diffuse, so that which lamps matter at a point depends on where it is, not on its BSDF.
 
     Lamp ``(i, j)`` (``i`` from the camera's side to the far wall) has radiance
     ``0.25 · 100^(i/(rows−1))`` in one of three colours, so the far row is 100× the near one.
@@ -46,7 +53,8 @@ def lamp_grid(width: int = 256, height: int = 192, rows: int = 24, **options):
     r, c = ROOM, CEILING
     meshes = [
         mesh(*_quad([[-r, 0, -r], [-r, 0, r], [r, 0, r], [r, 0, -r]]),
-             mt.phong([0.35, 0.35, 0.35], 0.25, 40.0), name="floor"),
+             mt.phong([0.35, 0.35, 0.35], 0.25, 40.0) if glossy else mt.diffuse(0.5),
+             name="floor"),
         mesh(*_quad([[-r, 0, -r], [r, 0, -r], [r, c, -r], [-r, c, -r]]), mt.diffuse(0.6),
              name="back wall"),
         mesh(*_quad([[-r, 0, -r], [-r, c, -r], [-r, c, r], [-r, 0, r]]),
@@ -54,7 +62,8 @@ def lamp_grid(width: int = 256, height: int = 192, rows: int = 24, **options):
         mesh(*_quad([[r, 0, -r], [r, 0, r], [r, c, r], [r, c, -r]]),
              mt.diffuse([0.2, 0.6, 0.2]), name="right wall"),
         mesh(*_box([-0.9, 0.0, -0.8], [-0.2, 0.9, -0.1]), mt.diffuse(0.7), name="tall block"),
-        mesh(*_box([0.3, 0.0, 0.0], [0.9, 0.45, 0.6]), mt.conductor(0.2, [0.9, 0.7, 0.5]),
+        mesh(*_box([0.3, 0.0, 0.0], [0.9, 0.45, 0.6]),
+             mt.conductor(0.2, [0.9, 0.7, 0.5]) if glossy else mt.diffuse([0.9, 0.7, 0.5]),
              name="short block"),
     ]
     pitch = 2 * r / rows
@@ -75,7 +84,7 @@ def lamp_grid(width: int = 256, height: int = 192, rows: int = 24, **options):
                             for k in range(len(quads))])
         meshes.append(mesh(v, f, mt.diffuse(0.0), emission=[radiance * ch for ch in colour],
                            name=f"lamps row {i}"))
-    cam = cm.look_at(eye=[0.0, 1.3, 1.95], target=[0.0, 0.7, -1.0], up=[0, 1, 0],
+    cam = cm.look_at(eye=[0.0, 1.3, 1.95], target=[0.0, 0.25, -1.0], up=[0, 1, 0],
                      fov_deg=60, width=width, height=height)
     options.setdefault("accel", "bvh")
     return build_scene(meshes, cam, **options)

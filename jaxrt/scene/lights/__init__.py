@@ -4,7 +4,8 @@ Kinds, one module each: :mod:`.delta` (point, spot, directional), :mod:`.area` (
 triangles, sampled by area or by solid angle), :mod:`.sphere` (spheres, sampled by the cone they
 subtend), :mod:`.environment` (constant or lat-long map). :mod:`.table` gathers them into the
 ``Lights`` pytree (static counts per kind, so absent kinds compile no code), selects a light
-uniformly or by power, and dispatches.
+uniformly, by power or by a light BVH (:mod:`.bvh`, a pmf that depends on the
+shading point), and dispatches.
 
 Build on the host, then use inside ``jit``/``vmap``::
 
@@ -49,6 +50,8 @@ from jaxrt.scene.lights.table import (
     light_table,
     pdf_li,
     sample_li,
+    select_light,
+    selection_pmf,
     triangle_light_index,
 )
 
@@ -78,6 +81,8 @@ __all__ = [
     "pdf_li",
     "point_light",
     "sample_li",
+    "select_light",
+    "selection_pmf",
     "sphere_light",
     "spot_light",
     "triangle_light_index",

@@ -12,9 +12,9 @@ Selection. ``sample_li`` picks a light with ``u[0]`` from a discrete distributio
 (pmf ``1/N``) or proportional to power (luminance; see each kind's ``*_power``) — and samples
 it with ``u[1:3]``. The returned ``pdf`` is the light's solid-angle density times the pmf (the
 pmf alone for delta lights); ``pdf_li`` returns the same product for a given direction, so the
-pair can be used for multiple importance sampling (Veach 1997, ch. 9). The receiver normal is
-not used (no light is skipped for being behind the receiver), which keeps ``pdf_li``
-independent of it.
+pair can be used for multiple importance sampling (Veach 1997, ch. 9). Uniform and power
+selection ignore the receiver normal; the light BVH (selection ``"bvh"``) weighs lights by
+it, so ``pdf_li`` takes the normal ``sample_li`` was given.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from jax import Array
 
 from jaxrt.core.vecmath import device_array
 from jaxrt.sampling.distributions import discrete_from_weights, discrete_pmf, discrete_sample
-from jaxrt.scene.lights import area, delta, environment, sphere
+from jaxrt.scene.lights import area, bvh, delta, environment, sphere
 from jaxrt.scene.lights.records import LightSample
 
 KINDS = ("point", "spot", "directional", "triangle", "sphere", "environment")
@@ -51,6 +51,9 @@ _TABLE_TYPES = {
 #: 0.065). Lights of equal power keep the uniform pmf; others lose at most 1 % of the samples.
 SELECTION_FLOOR = 0.01
 
+#: The light selections: uniform, by power, by a light BVH's importance at the shading point.
+SELECTIONS = ("uniform", "power", "bvh")
+
 
 @dataclasses.dataclass(frozen=True)
 class LightsStructure:
@@ -59,7 +62,8 @@ class LightsStructure:
     counts: tuple[int, ...]  # one per kind, in KINDS order
     environment: Literal["none", "constant", "map"] = "none"
     triangle_sampling: Literal["area", "solid_angle"] = "area"
-    selection: Literal["uniform", "power"] = "power"
+    selection: Literal["uniform", "power", "bvh"] = "power"
+    bvh_depth: int = 0  # the light BVH's depth (selection "bvh"): the descent's length
 
     def count(self, kind: str) -> int:
         """Number of lights of ``kind``."""
@@ -73,6 +77,14 @@ class LightsStructure:
     def num_lights(self) -> int:
         """Total number of lights."""
         return sum(self.counts)
+
+    @property
+    def unpositioned(self) -> np.ndarray:
+        """Global indices of the lights without a position (directional, then environment)."""
+        idx = [self.offset("directional") + k for k in range(self.count("directional"))]
+        if self.count("environment"):
+            idx.append(self.offset("environment"))
+        return np.asarray(idx, np.int32)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -92,7 +104,7 @@ class Lights:
     triangle: area.TriangleLights | None
     sphere: sphere.SphereLights | None
     environment: environment.ConstantEnvironment | environment.EnvironmentMap | None
-    selection: object
+    selection: object  # a Discrete (uniform, power) or a bvh.LightBVH (bvh)
     structure: LightsStructure
 
     def table(self, kind: str):
@@ -146,17 +158,20 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
         At most one environment.
       triangle_sampling: ``"area"`` (uniform on the triangle) or ``"solid_angle"`` (spherical
         triangle); static.
-      selection: ``"uniform"`` (pmf 1/N) or ``"power"`` (pmf ∝ luminance power plus
-        :data:`SELECTION_FLOOR` times the mean power, so that no light has pmf 0); static. If
-        every light has zero power, power selection falls back to uniform.
+      selection: ``"uniform"`` (pmf 1/N), ``"power"`` (pmf ∝ luminance power plus
+        :data:`SELECTION_FLOOR` times the mean power, so that no light has pmf 0) or ``"bvh"``
+        (a light BVH over the lights with a position, whose pmf depends on the shading point:
+        :mod:`.bvh`); static. If every light has zero power, power selection falls back to
+        uniform.
       scene_radius: radius of the scene's bounding sphere, for the power of directional and
         environment lights.
     """
     if triangle_sampling not in ("area", "solid_angle"):
         raise ValueError("triangle_sampling must be 'area' or 'solid_angle', "
                          f"got {triangle_sampling!r}")
-    if selection not in ("uniform", "power"):
-        raise ValueError(f"selection must be 'uniform' or 'power', got {selection!r}")
+    if selection not in SELECTIONS:
+        raise ValueError(f"selection must be one of {', '.join(map(repr, SELECTIONS))}, "
+                         f"got {selection!r}")
     if not (np.isfinite(scene_radius) and scene_radius > 0):
         raise ValueError(f"scene_radius must be finite and > 0, got {scene_radius}")
     by_kind: dict[str, list] = {k: [] for k in KINDS}
@@ -178,6 +193,11 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
                 "constant" if isinstance(env, environment.ConstantEnvironment) else "map")
     structure = LightsStructure(counts, env_kind, triangle_sampling, selection)
     draft = Lights(**tables, selection=None, structure=structure)
+    if selection == "bvh":
+        tree, depth = bvh.build_light_bvh(draft, light_powers(draft, scene_radius),
+                                          SELECTION_FLOOR)
+        return dataclasses.replace(draft, selection=tree,
+                                   structure=dataclasses.replace(structure, bvh_depth=depth))
     weights = np.ones(sum(counts))
     if selection == "power":
         power = light_powers(draft, scene_radius)
@@ -221,16 +241,15 @@ def sample_li(lights: Lights, p: Array, n: Array, u: Array) -> LightSample:
     Args:
       lights: the light table.
       p: (3,) shading point, world frame.
-      n: (3,) receiver normal — not used (documented: no light is culled for being behind).
+      n: (3,) receiver normal: the light BVH weighs lights by it (:mod:`.bvh`); uniform and
+        power selection ignore it. No light is culled for being behind the receiver.
       u: (3,) uniform variates: ``u[0]`` selects the light, ``u[1:3]`` sample it.
 
     Returns a :class:`LightSample` whose ``pdf`` is the solid-angle density including the
     selection pmf (pmf alone for delta lights).
     """
-    del n
     s = lights.structure
-    light, pmf, _ = discrete_sample(lights.selection, u[0])
-    light = light.astype(jnp.int32)
+    light, pmf = select_light(lights, p, n, u[0])
     u2 = u[1:3].astype(p.dtype)
     samplers = _samplers(s)
     out = None
@@ -248,7 +267,8 @@ def sample_li(lights: Lights, p: Array, n: Array, u: Array) -> LightSample:
     return LightSample(out.wi, out.dist, out.li, pdf, is_delta, light)
 
 
-def pdf_li(lights: Lights, p: Array, wi: Array, light: Array, p_light: Array) -> Array:
+def pdf_li(lights: Lights, p: Array, wi: Array, light: Array, p_light: Array,
+           n: Array | None = None) -> Array:
     """Solid-angle density with which :func:`sample_li` produces ``wi`` towards ``light``.
 
     Args:
@@ -256,6 +276,8 @@ def pdf_li(lights: Lights, p: Array, wi: Array, light: Array, p_light: Array) ->
       light: () int32 global light index (e.g. from the BSDF ray's hit).
       p_light: (3,) where the ray along ``wi`` hit the light's surface (triangles sampled by
         area need it; spheres and environments ignore it).
+      n: (3,) the receiver normal :func:`sample_li` was given (the light BVH's pmf depends on
+        it; ``None``: no receiver factor).
 
     Returns ``pmf(light) · p_ω(wi)``; 0 for delta lights (a BSDF sample never hits them).
     The caller guarantees that ``wi`` does hit ``light`` (this is not re-checked).
@@ -270,7 +292,28 @@ def pdf_li(lights: Lights, p: Array, wi: Array, light: Array, p_light: Array) ->
         j, mine = _local(s, kind, light)
         val = pdfs[kind](lights.table(kind), j, p, wi, p_light)
         total = jnp.where(mine, val, total)
-    return total * discrete_pmf(lights.selection, light).astype(p.dtype)
+    return total * selection_pmf(lights, p, light, n)
+
+
+def select_light(lights: Lights, p: Array, n: Array | None,
+                 u: Array) -> tuple[Array, Array]:
+    """Choose a light for shading point ``p`` (3,) with receiver normal ``n`` (3,) (or ``None``)
+    from ``u`` ∈ [0, 1): (global index () int32, its pmf ()). Uniform and power selection
+    ignore ``p`` and ``n``; the light BVH weighs each light by its importance there."""
+    s = lights.structure
+    if s.selection == "bvh":
+        return bvh.bvh_select(lights.selection, s.bvh_depth, s.unpositioned, p, n, u)
+    light, pmf, _ = discrete_sample(lights.selection, u)
+    return light.astype(jnp.int32), pmf.astype(p.dtype)
+
+
+def selection_pmf(lights: Lights, p: Array, light: Array, n: Array | None = None) -> Array:
+    """Probability that :func:`select_light` at ``(p, n)`` chooses ``light`` (global index); 0
+    for an index out of range."""
+    s = lights.structure
+    if s.selection == "bvh":
+        return bvh.bvh_pmf(lights.selection, s.bvh_depth, p, n, light)
+    return discrete_pmf(lights.selection, light).astype(p.dtype)
 
 
 def le_triangle(lights: Lights, light: Array, wo_light: Array) -> Array:
