@@ -1,12 +1,15 @@
 """What a texture costs: the Cornell box against the same box with a constant back-wall texture.
 
     python benchmarks/textures.py [--size 256] [--spp 16] [--rounds 8] [--estimator mis]
+    python benchmarks/textures.py --field emission   # a constant emission texture on the light
 
 Two scenes of one geometry: the built-in box (texture-free: no texture code is compiled) and
 the box whose back wall's albedo is a constant 8 × 8 texture of the same value (the same
 image, bit for bit: the bilinear lookup of a constant is exact; checked here), so the
 difference is the lookup alone: the hit's UVs from its triangle's affine map (11 numbers
 gathered per shading point), four texel gathers and the lerps, and a select per binding.
+``--field emission`` textures the light instead (a constant 1 times its radiance): then
+every light sample, BSDF hit of the light and camera hit of it looks the texture up.
 Both passes are compiled apart (``RenderPass.compile``, reported), then timed in
 interleaved rounds (A B, B A, …) in this process, per wall second and per CPU-second of the
 process (``time.process_time``), with the load average before and after. Prints samples/s
@@ -23,18 +26,22 @@ import time
 import numpy as np
 
 
-def scenes(size: int):
-    """``(plain, textured)``: the box, and the box with a constant texture on its back wall."""
+def scenes(size: int, field: str = "kd"):
+    """``(plain, textured)``: the box, and the box with a constant texture on its back wall's
+    albedo (``field="kd"``) or on its light's emission (``field="emission"``)."""
     import jaxrt
     from jaxrt.scene.builtin.cornell import WHITE, cornell_box, cornell_camera, cornell_meshes
 
     meshes = []
     for m in cornell_meshes():
-        if m.name == "back":
+        if m.name == ("back" if field == "kd" else "light"):
             lo, hi = m.vertices.min(axis=0), m.vertices.max(axis=0)
-            uv = (m.vertices[:, :2] - lo[:2]) / (hi[:2] - lo[:2])
-            m = jaxrt.mesh(m.vertices, m.faces, m.material, name=m.name, uv=uv,
-                           textures={"kd": jaxrt.texture(np.broadcast_to(WHITE, (8, 8, 3)))})
+            axes = [0, 1] if field == "kd" else [0, 2]
+            uv = (m.vertices[:, axes] - lo[axes]) / (hi[axes] - lo[axes])
+            value = WHITE if field == "kd" else 1.0
+            m = jaxrt.mesh(m.vertices, m.faces, m.material, emission=m.emission, name=m.name,
+                           uv=uv, textures={field: jaxrt.texture(
+                               np.broadcast_to(value, (8, 8, 3)).astype(np.float64))})
         meshes.append(m)
     return cornell_box(size, size), jaxrt.build_scene(meshes, cornell_camera(size, size))
 
@@ -45,6 +52,7 @@ def main(argv=None) -> int:
     parser.add_argument("--spp", type=int, default=16, help="samples per pixel per pass")
     parser.add_argument("--rounds", type=int, default=8)
     parser.add_argument("--estimator", default="mis")
+    parser.add_argument("--field", choices=("kd", "emission"), default="kd")
     a = parser.parse_args(argv)
 
     import jax
@@ -56,7 +64,7 @@ def main(argv=None) -> int:
     static = dict(est=est, sampler="independent", spp_total=1 << 20, batch_size=64)
     device = jax.devices()[:1]
     runs, compile_s, carries, images = {}, {}, {}, {}
-    for name, scene in zip(("plain", "textured"), scenes(a.size), strict=True):
+    for name, scene in zip(("plain", "textured"), scenes(a.size, a.field), strict=True):
         run = RenderPass(prepare_scene(scene, est), 0, device, 256, **static)
         compile_s[name] = run.compile(a.spp)
         carries[name] = run(run.zeros(), 0, a.spp)  # warm-up

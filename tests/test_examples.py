@@ -117,3 +117,18 @@ def test_inverse_texture_recovers_the_back_wall(tmp_path):
     np.testing.assert_array_equal(res["fitted"][~res["seen"]], res["start"][~res["seen"]])
     for name in ("before", "after"):
         assert read_png(tmp_path / f"fit_{name}.png").shape == (32, 64, 3)
+
+
+def test_emission_texture(tmp_path, capsys):
+    out = tmp_path / "stripes"
+    res = _load("emission_texture").main(["--size", "12", "--spp", "2", "--estimator",
+                                          "light_area", "-o", str(out)])
+    assert "2 triangle (selection power, triangles by area, 2 with 1 emission textures)" \
+        in capsys.readouterr().out
+    image, extra = read_exr(f"{out}.exr")
+    np.testing.assert_array_equal(image, res["result"].image)
+    np.testing.assert_array_equal(extra["stderr"], res["result"].stderr)
+    assert np.isfinite(image).all() and image.max() > 0
+    assert read_png(f"{out}.png").shape == (12, 12, 3)
+    stripes = _load("emission_texture").stripes()
+    np.testing.assert_allclose(stripes.mean(axis=(0, 1)), 1.0)  # the lamp keeps its power

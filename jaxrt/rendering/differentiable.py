@@ -106,7 +106,9 @@ def scene_params(scene: Scene) -> dict[str, Array]:
     ``spot.intensity`` (L, 3) in W/sr; ``directional.irradiance`` (L, 3); ``sphere.radiance``
     (L, 3); ``environment.radiance`` (3,) or ``environment.image`` (H, W, 3); ``textures.<k>``
     (H_k, W_k, C_k) the linear texels of image texture k (:mod:`jaxrt.scene.textures`, in
-    ``scene.textures.bindings`` order of first use).
+    ``scene.textures.bindings`` order of first use); ``emission.<k>`` (H_k, W_k, 3) the
+    texels of emission texture k of the triangle lights
+    (:class:`jaxrt.scene.lights.area.EmissionTextures`, in the order of the emissive meshes).
     """
     out = {}
     for name, (where, field) in PARAMS.items():
@@ -115,7 +117,16 @@ def scene_params(scene: Scene) -> dict[str, Array]:
             out[name] = getattr(t, field)
     if scene.textures is not None:
         out.update({f"textures.{k}": a for k, a in enumerate(scene.textures.texels)})
+    glow = _emission(scene)
+    if glow is not None:
+        out.update({f"emission.{k}": a for k, a in enumerate(glow.texels)})
     return out
+
+
+def _emission(scene: Scene):
+    """The emission textures of the scene's triangle lights, or None."""
+    t = scene.lights.triangle
+    return None if t is None else t.emission
 
 
 def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
@@ -132,9 +143,14 @@ def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
                        f"{sorted(have)}")
     by_table: dict[str, dict] = {}
     texels = None if scene.textures is None else list(scene.textures.texels)
+    glow = _emission(scene)
+    glow_texels = None if glow is None else list(glow.texels)
     for name, value in params.items():
         if name.startswith("textures."):
             texels[int(name.split(".")[1])] = value
+            continue
+        if name.startswith("emission."):
+            glow_texels[int(name.split(".")[1])] = value
             continue
         where, field = PARAMS[name]
         by_table.setdefault(where, {})[field] = value
@@ -143,6 +159,10 @@ def with_params(scene: Scene, params: dict[str, Array]) -> Scene:
     for where, fields in by_table.items():
         if where != "materials":
             light_tables[where] = lights.table(where)._replace(**fields)
+    if any(name.startswith("emission.") for name in params):
+        t = light_tables.get("triangle", lights.triangle)
+        light_tables["triangle"] = t._replace(
+            emission=dataclasses.replace(glow, texels=tuple(glow_texels)))
     materials = scene.materials._replace(**by_table.get("materials", {}))
     # radiometry only: what can block a shadow ray (occluders, convex bodies) stays as it is.
     # Found again, it would be lost wherever the scene is traced (a jitted derivative pass):

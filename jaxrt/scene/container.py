@@ -53,11 +53,12 @@ from jaxrt.scene import textures as tx
 
 
 class Mesh(NamedTuple):
-    """A triangle mesh with one material, and optionally uniform emission (a host-side record).
+    """A triangle mesh with one material, and optionally emission (a host-side record).
 
     vertices: (V, 3) float; faces: (F, 3) int; material: a :class:`jaxrt.scene.materials.Material`;
-    emission: (3,) radiance or None (not a light); a declared emission, even 0, makes the mesh
-    a light, so the static structure follows what was declared, not the values;
+    emission: (3,) radiance or None (not a light), scaled by an ``"emission"`` texture if
+    one is bound; a declared emission, even 0, makes the mesh a light, so the static structure
+    follows what was declared, not the values;
     two_sided_emission: emit on both sides; uv: (V, 2) texture coordinates per vertex or None;
     textures: ``(field, texture)`` pairs (:mod:`jaxrt.scene.textures`), empty if untextured.
     """
@@ -84,9 +85,11 @@ def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emissi
     ``uv``: (V, 2) per-vertex texture coordinates (``u`` along an image's width, ``v`` up its
     height); ``textures``: a dict ``{field: texture}`` binding material fields ``"kd"``,
     ``"ks"`` or ``"alpha"`` to :func:`jaxrt.scene.textures.texture` images (these override the
-    material's value of the field). Raises ValueError naming the mesh and the problem
-    (non-finite vertices, faces out of range, wrong shapes, negative or non-finite emission;
-    a textured mesh without UVs, a field its material does not use, texels out of range).
+    material's value of the field), and ``"emission"`` of an emissive mesh to an image that
+    scales ``emission``: it emits ``emission ⊙ T(uv)``. Raises ValueError naming the mesh and
+    the problem (non-finite vertices, faces out of range, wrong shapes, negative or
+    non-finite emission; a textured mesh without UVs, a field its material does not use,
+    texels out of range, an emission texture on a mesh that does not emit).
     """
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces)
@@ -113,11 +116,12 @@ def mesh(vertices, faces, material: mt.Material, emission=None, two_sided_emissi
             raise ValueError(f"mesh {name!r}: emission must be finite and >= 0, got {e.tolist()}")
         # a declared emission stays a light even at 0: the scene's static structure follows
         # what was declared, not the values, so a sweep of radiance through 0 compiles once
-    uv, bound = _mesh_textures(name, v, material, uv, textures)
+    uv, bound = _mesh_textures(name, v, material, uv, textures, e is not None)
     return Mesh(v, f.astype(np.int32), material, e, bool(two_sided_emission), name, uv, bound)
 
 
-def _mesh_textures(name: str, v: np.ndarray, material: mt.Material, uv, textures):
+def _mesh_textures(name: str, v: np.ndarray, material: mt.Material, uv, textures,
+                   emissive: bool):
     """Validated ``(uv, ((field, texture), ...))`` of :func:`mesh`."""
     if uv is not None:
         uv = np.asarray(uv, np.float64)
@@ -130,12 +134,17 @@ def _mesh_textures(name: str, v: np.ndarray, material: mt.Material, uv, textures
                          "has no UVs: give uv= (a mesh file's vt / uv / TEXCOORD_0)")
     kind = int(np.asarray(material.kind))
     for field, tex in bound:
-        if field not in tx.FIELDS:
+        if field not in tx.FIELDS and field != tx.EMISSION:
             raise ValueError(f"mesh {name!r}: cannot texture {field!r}; textured fields: "
-                             f"{', '.join(tx.FIELDS)}")
+                             f"{', '.join([*tx.FIELDS, tx.EMISSION])}")
         if not isinstance(tex, tx.Texture):
             raise ValueError(f"mesh {name!r}: textures[{field!r}] is a {type(tex).__name__}, "
                              "expected a jaxrt.scene.textures.texture(...)")
+        if field == tx.EMISSION:
+            if not emissive:
+                raise ValueError(f"mesh {name!r}: an emission texture needs an emissive mesh "
+                                 "(give emission=, the radiance the texture scales)")
+            continue
         if kind not in _FIELD_KINDS[field]:
             raise ValueError(f"mesh {name!r}: a {mt.KIND_NAMES[kind]} material has no "
                              f"{field!r} to texture")
@@ -288,7 +297,8 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     """Assemble a :class:`Scene` from meshes, a camera and non-mesh lights.
 
     Emissive meshes become triangle lights automatically (one light per triangle, radiance
-    from ``Mesh.emission``). ``extra_lights``: light records from :mod:`jaxrt.scene.lights` (point,
+    from ``Mesh.emission``, times its ``"emission"`` texture if it has one).
+    ``extra_lights``: light records from :mod:`jaxrt.scene.lights` (point,
     spot, directional, sphere, environment). ``accel``: "auto" | "brute" | "bvh".
     ``triangle_sampling``: how every light-sampling estimator (MIS included) samples triangle
     lights, "area" (uniform on the triangle) or "solid_angle" (uniform in the spherical
@@ -316,10 +326,13 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
         tris.append(t)
         mat_idx.append(np.full(len(t), i, np.int32))
         mats.append(m.material)
-        uvs.append(m.uv[m.faces] if m.textures else np.zeros((len(t), 3, 2)))
-        bindings += [(i, field, tex) for field, tex in m.textures]
+        material_textures = [(f, tex) for f, tex in m.textures if f != tx.EMISSION]
+        uvs.append(m.uv[m.faces] if material_textures else np.zeros((len(t), 3, 2)))
+        bindings += [(i, field, tex) for field, tex in material_textures]
         if m.emission is not None:
-            emissive.append((offset, t, m.emission, m.two_sided_emission, m.name))
+            glow = dict(m.textures).get(tx.EMISSION)
+            emissive.append((offset, t, m.emission, m.two_sided_emission, m.name,
+                             None if glow is None else (m.uv[m.faces], glow)))
         offset += len(t)
     triangles = np.concatenate(tris)
     prim_material = np.concatenate(mat_idx)
@@ -327,7 +340,7 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
     textures = tx.texture_table(bindings, triangles, np.concatenate(uvs))
 
     light_list = list(extra_lights)
-    for first, t, e, two, name in emissive:
+    for first, t, e, two, name, glow in emissive:
         area2 = np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
         keep = area2 > 0
         if not np.all(keep):
@@ -335,8 +348,10 @@ def build_scene(meshes: Sequence[Mesh], camera, extra_lights: Sequence[Any] = ()
                           "do not emit (they have no area to sample)", stacklevel=2)
         prims = first + np.flatnonzero(keep)
         if prims.size:
+            uv, tex = (None, None) if glow is None else (glow[0][keep], glow[1])
             light_list.append(lt.triangle_lights(t[keep], np.broadcast_to(e, (prims.size, 3)),
-                                                 prims.astype(np.int32), two_sided=two))
+                                                 prims.astype(np.int32), two_sided=two,
+                                                 uv=uv, texture=tex))
     if not light_list:
         # a black environment keeps every kernel well defined; the image is black
         warnings.warn("the scene has no lights: every image of it is black", stacklevel=2)
@@ -422,8 +437,12 @@ def describe_lights(lights) -> str:
     """E.g. ``"2 triangle, 1 point (selection power, triangles by solid_angle)"``."""
     s = lights.structure
     parts = [f"{c} {k}" for k, c in zip(lt.KINDS, s.counts, strict=True) if c]
+    glow = lights.triangle.emission if lights.triangle is not None else None
+    textured = ("" if glow is None else
+                f", {int(np.sum(np.asarray(glow.index) >= 0))} with "
+                f"{len(glow.texels)} emission textures")
     return (f"{', '.join(parts)} (selection {s.selection}, triangles by "
-            f"{s.triangle_sampling})")
+            f"{s.triangle_sampling}{textured})")
 
 
 #: Fields of each light table that are geometry: :func:`guard_geometry` refuses their derivatives.
@@ -458,6 +477,10 @@ def guard_geometry(scene: Scene) -> Scene:
         if t is not None:
             tables[kind] = t._replace(**{f: guard(getattr(t, f), f"{kind} light {f}")
                                          for f in fields if f in t._fields})
+    glow = lights.triangle.emission if lights.triangle is not None else None
+    if glow is not None:
+        tables["triangle"] = tables["triangle"]._replace(emission=dataclasses.replace(
+            glow, uv_map=guard(glow.uv_map, "the emission texture coordinates")))
     cam = scene.camera
     camera = dataclasses.replace(cam, **{f: guard(getattr(cam, f), f"the camera's {f}")
                                          for f in ("eye", "frame", "tan_half_fov", "aspect")})

@@ -50,11 +50,14 @@ RGB triple is)::
 translation. A mesh's ``material`` overrides the file's materials; its ``emission`` overrides
 the file's emission (``Ke`` in MTL, emissive factor in glTF).
 
-``textures`` bind material fields (``kd``, ``ks``, ``alpha``) of a mesh to PNG or EXR images
-(:mod:`jaxrt.scene.textures`): ``wrap`` "repeat" (default) or "clamp", ``filter``
+``textures`` bind material fields (``kd``, ``ks``, ``alpha``) of a mesh, or the radiance
+of an emissive one (``emission``: it emits ``emission`` times the image), to PNG or EXR
+images (:mod:`jaxrt.scene.textures`): ``wrap`` "repeat" (default) or "clamp", ``filter``
 "bilinear" (default) or "nearest", ``encoding`` "auto" (default: 8-bit colour maps are
 sRGB, the rest linear), "srgb" or "linear". The same file with the same options is one
-texture (one array of texels) wherever it is used. A textured mesh needs UVs (its file's,
+texture (one array of texels) wherever it is used. A mesh file's own texture maps (an MTL's
+``map_Kd``, a glTF ``baseColorTexture``) are bound unless the entry gives ``textures`` (even
+``{}``) or a ``material``. A textured mesh needs UVs (its file's,
 or ``uv`` of an inline mesh); a missing texture file, a bad option or missing UVs is a
 ``FileFormatError`` (a ValueError) naming the entry, raised before the scene is built.
 
@@ -205,8 +208,9 @@ def _textures(ctx: _Ctx, spec, where: str, base: Path, cache: dict) -> dict:
         if field.startswith("_"):
             continue
         at = f"{where}.{field}"
-        if field not in tx.FIELDS:
-            ctx.fail(at, f"cannot texture {field!r}; textured fields: {', '.join(tx.FIELDS)}")
+        if field not in tx.FIELDS and field != tx.EMISSION:
+            ctx.fail(at, f"cannot texture {field!r}; textured fields: "
+                     f"{', '.join([*tx.FIELDS, tx.EMISSION])}")
         entry = {"file": entry} if isinstance(entry, str) else entry
         ctx.check_keys(entry, _TEXTURE_KEYS, at, "a file name or an object")
         name = ctx.get(entry, "file", at)
@@ -250,7 +254,10 @@ def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path,
             path = base / entry["file"]
             if not path.exists():
                 _missing(ctx, where, "mesh file", path)
-            for md in load_meshes(path):
+            # the file's own texture maps (MTL map_Kd) belong to its materials: an explicit
+            # "textures" (even {}) or "material" replaces them (and their images are not read)
+            explicit = entry.get("textures") is not None
+            for md in load_meshes(path, textures=not explicit and override is None):
                 v = _transform(ctx, entry.get("transform"), md.vertices.astype(np.float64),
                                f"{where}.transform")
                 mat = override if override is not None else material_from_spec(md.material)
@@ -264,7 +271,7 @@ def _meshes(ctx: _Ctx, entry: dict, where: str, materials: dict, base: Path,
                              "texture coordinates (vt lines, PLY s/t or u/v, glTF TEXCOORD_0)")
                 out.append(mesh(v, md.faces, mat, emission=e, two_sided_emission=two,
                                 name=f"{entry['file']}:{md.name}", uv=md.uv,
-                                textures=textures))
+                                textures=textures if explicit else md.textures))
         else:
             v = np.asarray(ctx.get(entry, "vertices", where), np.float64)
             f = np.asarray(ctx.get(entry, "faces", where))

@@ -14,15 +14,19 @@ OBJ / MTL (values read from the MTL as trimesh parses it, exact floats):
     ``illum`` 3 or 5 with ``Kd = 0``.
   - energy: ``kd + ks ≤ 1`` per channel is enforced by scaling both by ``1 / max(kd + ks)``,
     with a warning; a negative ``Ns`` becomes 0, with a warning.
-  - ``map_Kd`` textures, transparency (``d`` < 1, ``Tr`` > 0) and refraction (``illum`` 4, 6,
-    7, 9) are not modelled: ignored, with a warning.
+  - ``map_Kd image`` → ``MeshData.textures = {"kd": Texture}``
+    (:mod:`jaxrt.scene.mesh_textures`).
+  - transparency (``d`` < 1, ``Tr`` > 0) and refraction (``illum`` 4, 6, 7, 9) are not
+    modelled: ignored, with a warning. Other maps (``map_Ks``, ``bump``, ...) are ignored.
 glTF / GLB (factors read from the file's JSON: exact, and trimesh drops the extension):
   - ``metallicFactor < 0.5``: ``"diffuse"``, ``kd = baseColorFactor.rgb``;
     otherwise ``"conductor"`` with ``ks = baseColorFactor.rgb`` and ``alpha = roughness²``
     (the usual perceptual-roughness → GGX alpha map), ``"mirror"`` when ``alpha = 0``.
     Missing factors take the glTF defaults (base colour 1, metallic 1, roughness 1).
   - ``emission = emissiveFactor × KHR_materials_emissive_strength.emissiveStrength`` (radiance).
-  - ``two_sided_emission = doubleSided``. Textures are ignored, with a warning.
+  - ``two_sided_emission = doubleSided``. ``baseColorTexture`` is bound (mesh_textures);
+    ``metallicRoughnessTexture`` and ``emissiveTexture`` are ignored, with a warning;
+    normal and occlusion maps are ignored.
 PLY, and any geometry without a material (OBJ without MTL, glTF primitive without material):
   grey diffuse ``kd = 0.5``, unless the file has vertex (or face) colours: then ``kd`` is their
   mean, decoded from 8-bit sRGB to linear, with a warning when they vary (one albedo per mesh:
@@ -31,8 +35,13 @@ PLY, and any geometry without a material (OBJ without MTL, glTF primitive withou
 OBJ has no two-sided emitters: ``two_sided_emission = False``.
 
 Texture coordinates (OBJ ``vt``, PLY ``s``/``t`` or ``u``/``v``, glTF ``TEXCOORD_0``) come
-back per vertex as ``MeshData.uv``; binding images to material fields is the scene loader's
-job (:mod:`jaxrt.scene.textures`), the files' own texture maps stay ignored.
+back per vertex as ``MeshData.uv``, in one convention for every format, OBJ's and
+:mod:`jaxrt.scene.textures`': ``u`` along the image's width, ``v`` up its height (``v = 0``
+the image's bottom row). OBJ and PLY store that convention; glTF stores ``v`` down (its
+``(0, 0)`` is the image's top-left corner) and trimesh returns ``1 − v``, so the same quad
+exported as OBJ, PLY, glTF or GLB gives the same ``uv`` (tests/scene/test_mesh_texture_files.py).
+
+Texture maps (MTL ``map_Kd``, glTF ``baseColorTexture``): see :mod:`jaxrt.scene.mesh_textures`.
 
 Nothing is dropped silently: degenerate triangles (a repeated index or zero area) are removed
 with a warning giving their count; non-triangle geometry (lines, points) is skipped with a
@@ -56,6 +65,7 @@ import numpy as np
 import trimesh
 
 from jaxrt.scene.images import FileFormatError
+from jaxrt.scene.mesh_textures import _mtl_texture_maps, _with_gltf_texture, _with_texture_map
 
 __all__ = ["MaterialSpec", "MeshData", "load_meshes"]
 
@@ -133,8 +143,10 @@ class MeshData(NamedTuple):
       faces: (F, 3) int32 numpy vertex indices, counter-clockwise seen from the front.
       material: its ``MaterialSpec``.
       uv: (V, 2) float64 texture coordinates per vertex (OBJ ``vt``, PLY ``s``/``t`` or
-        ``u``/``v``, glTF ``TEXCOORD_0``; ``v`` up, as trimesh gives them), or None when the
-        file has none (for any part of the mesh).
+        ``u``/``v``, glTF ``TEXCOORD_0``; ``v`` up in every format, see the module docstring),
+        or None when the file has none (for any part of the mesh).
+      textures: ``{field: jaxrt.scene.textures.Texture}`` the file's material binds (an MTL
+        ``map_Kd`` → ``"kd"``), or None. Always None when loaded with ``textures=False``.
     """
 
     name: str
@@ -142,6 +154,7 @@ class MeshData(NamedTuple):
     faces: np.ndarray
     material: MaterialSpec
     uv: np.ndarray | None = None
+    textures: dict | None = None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -197,8 +210,6 @@ def _mtl_material(where: str, mat) -> MaterialSpec:
     if exponent < 0:
         _warn(f"{where}: negative Ns = {exponent} set to 0")
         exponent = 0.0
-    if getattr(mat, "image", None) is not None:
-        _warn(f"{where}: texture map_Kd ignored, using Kd")
     illum = int(_floats(where, "illum", raw["illum"])[0]) if "illum" in raw else None
     dissolve = float(_floats(where, "d", raw["d"])[0]) if "d" in raw else 1.0
     transmit = float(_floats(where, "Tr", raw["tr"])[0]) if "tr" in raw else 0.0
@@ -236,10 +247,11 @@ def _gltf_spec(where: str, entry: dict) -> MaterialSpec:
     strength = entry.get("extensions", {}).get("KHR_materials_emissive_strength", {})
     emission = np.asarray(entry.get("emissiveFactor", [0.0, 0.0, 0.0]), np.float64)
     emission = _emission(where, emission * float(strength.get("emissiveStrength", 1.0)))
-    if any(k in pbr for k in ("baseColorTexture", "metallicRoughnessTexture")) or (
-        "emissiveTexture" in entry
-    ):
-        _warn(f"{where}: textures ignored, using the material's factors")
+    # baseColorTexture is bound by load_meshes (textures=True): mesh_textures._with_gltf_texture
+    ignored = [k for k in ("metallicRoughnessTexture",) if k in pbr] + [
+        k for k in ("emissiveTexture",) if k in entry]
+    if ignored:
+        _warn(f"{where}: {', '.join(ignored)} ignored, using the material's factors")
     if base.min() < 0 or base.max() > 1 or not 0 <= roughness <= 1:
         _warn(f"{where}: factors outside [0, 1] clipped")
         base, roughness = np.clip(base, 0, 1), min(max(roughness, 0.0), 1.0)
@@ -297,14 +309,15 @@ def _vertex_colour_spec(where: str, visual) -> MaterialSpec:
 
 def _material_of(
     where: str, geometry, gltf_entries: list[dict] | None
-) -> tuple[str | None, MaterialSpec]:
-    """(material name, MaterialSpec) of one trimesh geometry."""
+) -> tuple[str | None, MaterialSpec, dict | None]:
+    """(material name, MaterialSpec, its glTF JSON entry or None) of one trimesh geometry."""
     visual = geometry.visual
     mat = getattr(visual, "material", None) if visual.kind != "vertex" else None
     if isinstance(mat, trimesh.visual.material.PBRMaterial) and gltf_entries is not None:
         entry = _gltf_entry_for(where, mat, gltf_entries)
         if entry is not None:
-            return entry.get("name"), _gltf_spec(f"{where}, material {entry.get('name')!r}", entry)
+            spec = _gltf_spec(f"{where}, material {entry.get('name')!r}", entry)
+            return entry.get("name"), spec, entry
     if isinstance(mat, trimesh.visual.material.PBRMaterial):
         # no JSON entry (not from a glTF file): trimesh's own, 8-bit, factors
         _warn(f"{where}: material {mat.name!r} not found in the glTF JSON; using trimesh's values")
@@ -327,10 +340,10 @@ def _material_of(
         }
         if mat.emissiveFactor is not None:
             entry["emissiveFactor"] = np.asarray(mat.emissiveFactor).tolist()
-        return mat.name, _gltf_spec(where, entry)
+        return mat.name, _gltf_spec(where, entry), None
     if isinstance(mat, trimesh.visual.material.SimpleMaterial):
-        return mat.name, _mtl_material(f"{where}, material {mat.name!r}", mat)
-    return None, _vertex_colour_spec(where, visual)
+        return mat.name, _mtl_material(f"{where}, material {mat.name!r}", mat), None
+    return None, _vertex_colour_spec(where, visual), None
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,25 +469,32 @@ def _load_scene(path: str) -> trimesh.Scene:
         ) from err
 
 
-def load_meshes(path: str | os.PathLike) -> list[MeshData]:
+def load_meshes(path: str | os.PathLike, textures: bool = True) -> list[MeshData]:
     """Load every triangle mesh of an OBJ (+MTL), PLY, glTF or GLB file, grouped by material.
 
     Each geometry instance of the scene graph gets its world transform; instances sharing a
     material (same name and same ``MaterialSpec``) are concatenated into one ``MeshData``, in
     order of first appearance. Polygons are triangulated by trimesh. See the module docstring
-    for the material mapping and the warnings and errors.
+    for the material mapping and the warnings and errors, and :mod:`jaxrt.scene.mesh_textures`
+    for the texture maps (an MTL ``map_Kd`` image that is not PNG or EXR is skipped with a
+    warning: the material's ``Kd`` is used).
 
     Args:
       path: a file with suffix .obj, .ply, .gltf or .glb (MTL files and glTF buffers are found
         relative to it).
+      textures: read the images the file's materials bind (MTL ``map_Kd``) into
+        ``MeshData.textures``; False skips them (and their errors), e.g. when the caller
+        replaces the file's materials or textures.
 
     Returns:
       A non-empty list of ``MeshData``: (V, 3) float32 vertices, (F, 3) int32 faces.
 
     Raises:
-      FileNotFoundError: no such file.
+      FileNotFoundError: no such file, or (``textures``) no such ``map_Kd`` image.
       FileFormatError: unsupported suffix, unreadable or malformed file, no triangles, an empty
-        mesh, non-finite vertices, faces out of range (the message names file and mesh).
+        mesh, non-finite vertices, faces out of range (the message names file and mesh); with
+        ``textures``, a ``map_Kd`` on a mesh without UVs, an unreadable PNG or EXR image or
+        an option not modelled (naming the OBJ file and the material).
     """
     path = os.fspath(path)
     if not os.path.isfile(path):
@@ -482,23 +502,31 @@ def load_meshes(path: str | os.PathLike) -> list[MeshData]:
     suffix = os.path.splitext(path)[1].lower()
     if suffix not in SUFFIXES:
         raise FileFormatError(f"{path}: unsupported mesh format {suffix!r} (use one of {SUFFIXES})")
-    gltf_entries = None
+    gltf = None
     if suffix in (".gltf", ".glb"):
-        gltf_entries = _gltf_json(path).get("materials", [])
+        gltf = _gltf_json(path)
     if suffix != ".obj":
-        return _load_meshes(path, gltf_entries)
+        meshes = _load_meshes(path, None if gltf is None else gltf.get("materials", []))
+        if gltf is None or not textures:
+            return [md for md, *_ in meshes]
+        return [_with_gltf_texture(path, gltf, md, entry, mat) for md, _, entry, mat in meshes]
     # trimesh wraps vertex index 0 (invalid in OBJ) around to the last vertex
     with open(path, "rb") as f:
         if _OBJ_ZERO_INDEX.search(f.read()):
             _check_obj(path)
+    maps = _mtl_texture_maps(path) if textures else {}
     try:
-        return _load_meshes(path, gltf_entries)
+        meshes = _load_meshes(path, None)
     except FileFormatError:
         _check_obj(path)  # a message naming the line, if the fault is one it knows
         raise
+    cache: dict = {}
+    return [_with_texture_map(path, md, maps.get(name), cache) for md, name, *_ in meshes]
 
 
-def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
+def _load_meshes(path: str, gltf_entries: list | None) -> list[tuple]:
+    """``(MeshData, material name or None, glTF JSON entry or None, trimesh material)`` per
+    material group."""
     scene = _load_scene(path)
 
     groups: dict[tuple, list] = {}
@@ -512,8 +540,9 @@ def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
             continue
         vertices, faces = _instance(where, geometry, np.asarray(transform, np.float64))
         faces = _nondegenerate(where, vertices, faces)
-        material_name, spec = _material_of(where, geometry, gltf_entries)
-        group = groups.setdefault((material_name, spec), [material_name or geometry_name])
+        material_name, spec, entry = _material_of(where, geometry, gltf_entries)
+        group = groups.setdefault((material_name, spec), [(
+            material_name or geometry_name, entry, getattr(geometry.visual, "material", None))])
         uv = getattr(geometry.visual, "uv", None) if geometry.visual.kind == "texture" else None
         uv = None if uv is None or len(uv) != len(vertices) else np.asarray(uv, np.float64)
         group.append((vertices, faces, uv))
@@ -523,7 +552,7 @@ def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
         raise FileFormatError(f"{path}: no triangle meshes found")
 
     meshes = []
-    for (_, spec), (name, *parts) in groups.items():
+    for (material_name, spec), ((name, entry, mat), *parts) in groups.items():
         # offset each part's indices by the vertices that precede it
         offsets = np.cumsum([0] + [len(v) for v, _, _ in parts[:-1]])
         vertices = np.concatenate([v for v, _, _ in parts])
@@ -531,5 +560,6 @@ def _load_meshes(path: str, gltf_entries: list | None) -> list[MeshData]:
                                 for (_, f, _), o in zip(parts, offsets, strict=True)])
         uv = (None if any(t is None for _, _, t in parts)
               else np.concatenate([t for _, _, t in parts]))
-        meshes.append(MeshData(str(name), vertices, faces.astype(np.int32), spec, uv))
+        meshes.append((MeshData(str(name), vertices, faces.astype(np.int32), spec, uv),
+                       material_name, entry, mat))
     return meshes

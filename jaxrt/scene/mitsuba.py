@@ -379,10 +379,13 @@ def _shape(ctx: _Ctx, node: _Node, named: dict, meshes: list, lights: list):
         e = emitters[0]
         if ctx.attr(e, "type") != "area":
             ctx.fail(e, "a shape's emitter must be of type 'area'")
-        radiance = _Props(ctx, e, ("radiance",)).get("radiance", kind="rgb")
+        radiance = _Props(ctx, e, ("radiance",), textured=("radiance",)).get("radiance",
+                                                                             kind="rgb")
     m = p.get("to_world", np.eye(4), "matrix")
     flip = p.get("flip_normals", False, "bool")
     if kind == "sphere":
+        if isinstance(radiance, tx.Texture):
+            ctx.fail(emitters[0], "a textured sphere light is not modelled")
         if radiance is None:
             ctx.fail(node, "a sphere is only a light in jaxrt (it reflects nothing): give it an "
                      "area emitter, or use a mesh")
@@ -402,11 +405,14 @@ def _shape(ctx: _Ctx, node: _Node, named: dict, meshes: list, lights: list):
         lights.append(_try(ctx, node, lambda: lt.sphere_light(m[:3, 3], rad, radiance)))
         return
     mat, textures = _bsdf(ctx, bsdfs[0], named) if bsdfs else (mt.diffuse(0.5), {})
+    if isinstance(radiance, tx.Texture):  # a bitmap radiance: jaxrt's emission texture
+        textures, radiance = {**textures, tx.EMISSION: radiance}, np.ones(3)
     if kind in ("obj", "ply"):
         path = ctx.file(p.where.get("filename", node), p.get("filename", kind="string"),
                         "mesh file")
+        # the file's own materials (MTL, glTF) and their images are Mitsuba's to ignore too
         parts = _try(ctx, node, lambda: [(d.vertices, d.faces, d.uv)
-                                         for d in load_meshes(path)])
+                                         for d in load_meshes(path, textures=False)])
     elif kind == "rectangle":
         parts = [(_RECT, np.array([[0, 1, 2], [0, 2, 3]]), _RECT_UV)]
     else:

@@ -163,7 +163,7 @@ def emitted(scene: Scene, hit: SurfaceHit, wo: Array) -> Array:
     ``wo`` points from the hit back to the ray's origin (so a miss looks up ``−wo``).
     """
     lights = scene.lights
-    le = jnp.where(hit.kind == TRIANGLE, lt.le_triangle(lights, hit.light, wo), 0)
+    le = jnp.where(hit.kind == TRIANGLE, lt.le_triangle(lights, hit.light, wo, hit.p), 0)
     if lights.structure.count("sphere"):
         le = jnp.where(hit.kind == SPHERE, lt.le_sphere(lights, hit.light, wo, hit.p), le)
     if lights.structure.environment != "none":

@@ -44,8 +44,12 @@ FILTERS = ("bilinear", "nearest")
 ENCODINGS = ("auto", "srgb", "linear")
 #: Material fields a texture can drive, and the channels each takes.
 FIELDS = {"kd": 3, "ks": 3, "alpha": 1}
+#: The field of an emissive mesh's radiance (its triangle lights':
+#: :class:`jaxrt.scene.lights.area.EmissionTextures`), a colour.
+EMISSION = "emission"
 #: Fields that hold colours (sRGB-decoded when the image is 8-bit and ``encoding="auto"``).
-COLOUR_FIELDS = ("kd", "ks")
+COLOUR_FIELDS = ("kd", "ks", EMISSION)
+_CHANNELS = {**FIELDS, EMISSION: 3}
 
 
 def srgb_to_linear(c, xp=jnp):
@@ -139,14 +143,16 @@ def decoded(tex: Texture, field: str) -> np.ndarray:
 
     Colour fields: sRGB-decoded if ``encoding == "srgb"``, or "auto" and 8-bit; a one-channel
     image is grey. ``alpha``: linear (decoded only if ``encoding == "srgb"``), a colour
-    image's Rec. 709 luminance.
+    image's Rec. 709 luminance. ``field`` may also be :data:`EMISSION` (a colour).
     """
+    from jaxrt.scene.lights.records import luminance_np
+
     t = tex.texels
     srgb = tex.encoding == "srgb" or (tex.encoding == "auto" and tex.eight_bit
                                       and field in COLOUR_FIELDS)
     t = srgb_to_linear(t, xp=np) if srgb else t
-    if FIELDS[field] == 1:
-        return t if t.shape[2] == 1 else (t @ np.array([0.2126, 0.7152, 0.0722]))[..., None]
+    if _CHANNELS[field] == 1:
+        return t if t.shape[2] == 1 else luminance_np(t)[..., None]
     return np.broadcast_to(t, t.shape[:2] + (3,))
 
 
@@ -300,7 +306,12 @@ def uv_at(table: TextureTable, prim: Array, p: Array) -> Array:
     """Texture coordinates (2,) of the point ``p`` (3,) on triangle ``prim`` (its affine map,
     :func:`uv_gradients`; ``p − v0`` first, so that precision does not depend on where the
     scene lies)."""
-    row = table.uv_map[jnp.maximum(prim, 0)].astype(p.dtype)
+    return uv_of_row(table.uv_map[jnp.maximum(prim, 0)], p)
+
+
+def uv_of_row(row: Array, p: Array) -> Array:
+    """``uv0 + (p − v0) G`` (2,) of one (11,) row of an affine UV map (:func:`uv_gradients`)."""
+    row = row.astype(p.dtype)
     d = p - row[2:5]
     g = row[5:11].reshape(3, 2)
     return row[0:2] + d[0] * g[0] + d[1] * g[1] + d[2] * g[2]

@@ -4,7 +4,7 @@ Three factors span the configuration space:
 
 - the lights (:data:`LIGHTS`): each kind alone (point, spot, directional, sphere, constant
   and map environment, emissive triangles) and all of them together, chosen by power and,
-  once more, by the light BVH (``light_selection="bvh"``);
+  once more, by the light BVH (``light_selection="bvh"``) with an emission-textured lamp;
 - the geometry path (:data:`GEOMETRY`): a lone plane (nothing can block a shadow ray), an
   open mesh and a closed non-convex mesh tested triangle by triangle, a convex body tested
   by its face planes, and a BVH; every brute-force scene's camera rays take the shared-origin
@@ -52,6 +52,7 @@ from jaxrt.scene.lights import (
     spot_light,
 )
 from jaxrt.scene.materials import conductor, diffuse, mirror, phong
+from jaxrt.scene.textures import texture
 
 SPP = 512
 SIZE = 16
@@ -128,10 +129,14 @@ LIGHTS = {
                       environment_map(0.3 * _env_image())],
 }
 #: the mixed lights again, chosen by the light BVH (its pmf depends on the shading point and
-#: normal: light sampling, MIS weights of BSDF hits and every path vertex use it)
+#: normal: light sampling, MIS weights of BSDF hits and every path vertex use it), with the
+#: lamp's radiance scaled by an emission texture (looked up at every light sample, BSDF hit
+#: and camera hit of the lamp)
 LIGHTS["mixed_bvh"] = LIGHTS["mixed"]
 SELECTION = {"mixed_bvh": "bvh"}
 EMISSIVE_QUAD = {"triangles", "mixed", "mixed_bvh"}
+TEXTURED_LAMP = {"mixed_bvh"}
+LAMP_TEXELS = np.random.default_rng(2).uniform(0.25, 1.75, (4, 4, 3))
 
 #: the relative bias each comparison with MIS must resolve in every cell: 5σ of the image
 #: means' difference, over the mean, at most this (a bias of that size moves z by 5).
@@ -181,7 +186,10 @@ def cell_scene(light: str, geometry: str, material: str):
     meshes = _floor(material) + _objects(geometry, material)
     if light in EMISSIVE_QUAD:
         v, f = _quad(-0.25, 0.25, -0.25, 0.25, y=1.5, down=True)
-        meshes.append(mesh(v, f, diffuse(0.0), emission=[4.0, 4.0, 4.0], name="lamp"))
+        glow = (dict(uv=[[0, 0], [1, 0], [1, 1], [0, 1]],
+                     textures={"emission": texture(LAMP_TEXELS)}) if light in TEXTURED_LAMP
+                else {})
+        meshes.append(mesh(v, f, diffuse(0.0), emission=[4.0, 4.0, 4.0], name="lamp", **glow))
     cam = look_at(eye=[0.0, 2.2, 2.2], target=[0.0, 0.1, -0.1], up=[0, 1, 0], fov_deg=40,
                   width=SIZE, height=SIZE)
     return build_scene(meshes, cam, LIGHTS[light](),

@@ -183,7 +183,9 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
     if len(by_kind["environment"]) > 1:
         raise ValueError("at most one environment light per scene")
     env = by_kind["environment"][0] if by_kind["environment"] else None
-    tables = {k: (_concat(v) if v and k != "environment" else None) for k, v in by_kind.items()}
+    tables = {k: (None if not v or k == "environment" else
+                  area.concat_triangle_lights(v) if k == "triangle" else _concat(v))
+              for k, v in by_kind.items()}
     tables["environment"] = env
     counts = tuple(0 if tables[k] is None else
                    (1 if k == "environment" else int(tables[k][0].shape[0])) for k in KINDS)
@@ -316,17 +318,20 @@ def selection_pmf(lights: Lights, p: Array, light: Array, n: Array | None = None
     return discrete_pmf(lights.selection, light).astype(p.dtype)
 
 
-def le_triangle(lights: Lights, light: Array, wo_light: Array) -> Array:
-    """Radiance emitted by triangle light ``light`` (global index) along ``wo_light`` (3,).
+def le_triangle(lights: Lights, light: Array, wo_light: Array,
+                p_light: Array | None = None) -> Array:
+    """Radiance emitted by triangle light ``light`` (global index) at its point ``p_light``
+    (3,) along ``wo_light`` (3,).
 
     ``wo_light`` leaves the light (towards the receiver). One-sided triangles emit only on the
     side of ``cross(v1 − v0, v2 − v0)``. Returns 0 if ``light`` is not a triangle light.
+    ``p_light`` matters (and is required) only where triangles have emission textures.
     """
     s = lights.structure
     if s.count("triangle") == 0:
         return jnp.zeros_like(wo_light)
     j, mine = _local(s, "triangle", jnp.asarray(light, jnp.int32))
-    le = area.le_triangle_local(lights.triangle, j, wo_light)
+    le = area.le_triangle_local(lights.triangle, j, wo_light, p_light)
     return jnp.where(mine, le, jnp.zeros_like(le))
 
 
