@@ -13,6 +13,10 @@ Run (a few minutes on 2 cores)::
 
     python benchmarks/many_lights.py [--size 96] [--spp 16] [--rounds 3] [--ref-spp 1024]
 
+``--split`` (median against SAOH splits, at the median tree's depth and free of it) or
+``--branching`` (8 against 16 children) compares trees built differently, by light sampling
+only, beside power selection.
+
 With ``--mitsuba`` (same options, and ``--variant``) it compares jaxrt's ``mis`` with Mitsuba
 3's ``direct`` integrator instead, on the room with Mitsuba-equal BSDFs (:func:`mitsuba_main`;
 skipped with a message when Mitsuba does not import; benchmarks/MITSUBA.md).
@@ -21,6 +25,7 @@ skipped with a message when Mitsuba does not import; benchmarks/MITSUBA.md).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import statistics
 import time
@@ -49,6 +54,20 @@ PATH_VARIANTS = tuple(
                      ("ris M=8", {"nee": "ris", "ris_candidates": 8})))
 
 
+def tree_scene(scene, split="saoh", branch_bits=4):
+    """``scene`` (light selection ``bvh``) with its light BVH rebuilt by ``split`` with
+    ``2**branch_bits`` children per node."""
+    from jaxrt.scene.lights import bvh
+    from jaxrt.scene.lights.table import SELECTION_FLOOR, light_powers
+
+    lights = scene.lights
+    tree, depth = bvh.build_light_bvh(lights, light_powers(lights), SELECTION_FLOOR,
+                                      branch_bits=branch_bits, split=split)
+    lights = dataclasses.replace(lights, selection=tree, structure=dataclasses.replace(
+        lights.structure, bvh_depth=depth))
+    return scene.replace(lights=lights)
+
+
 def _timed_render(scene, estimator, params, spp, seed):
     c0, w0 = time.process_time(), time.perf_counter()
     r = jaxrt.render(scene, estimator, spp=spp, seed=seed, progress=False, **params)
@@ -65,12 +84,30 @@ def main(argv=None) -> int:
                     help=f"the path tracer at depth {PATH_DEPTH} (NEE by light sampling or RIS)")
     ap.add_argument("--diffuse", action="store_true",
                     help="the room with a diffuse floor and block (lamp_grid(glossy=False))")
+    ap.add_argument("--split", action="store_true",
+                    help="light sampling with trees of median, SAOH (at the median tree's depth) "
+                    "and depth-free SAOH splits (16 children)")
+    ap.add_argument("--branching", action="store_true",
+                    help="light sampling with trees of 8 and of 16 children per node")
+    ap.add_argument("--tree-split", default="saoh", choices=("saoh", "median"),
+                    help="the splits of --branching's trees")
     args = ap.parse_args(argv)
     scenes = {sel: lamp_grid(args.size, args.size * 3 // 4, glossy=not args.diffuse,
                              light_selection=sel) for sel in ("power", "bvh")}
     print(scenes["bvh"].summary(), flush=True)
-    load0 = os.getloadavg()
     variants = PATH_VARIANTS if args.path else VARIANTS
+    if args.split or args.branching:
+        trees = ({"bvh median": ("median", 4), "bvh saoh": ("saoh", 4),
+                  "bvh saoh-free": ("saoh-free", 4)} if args.split else
+                 {f"bvh 8 children ({args.tree_split})": (args.tree_split, 3),
+                  f"bvh 16 children ({args.tree_split})": (args.tree_split, 4)})
+        for sel, (split, bits) in trees.items():
+            scenes[sel] = tree_scene(scenes["bvh"], split, bits)
+            print(f"{sel}: depth {scenes[sel].lights.structure.bvh_depth}, "
+                  f"{scenes[sel].lights.selection.node.shape[0]} nodes")
+        variants = (variants[0],) + tuple((f"{sel} · light_solid_angle", sel,
+                                           "light_solid_angle", {}) for sel in trees)
+    load0 = os.getloadavg()
     ref_estimator, ref_params = ("path", {"max_depth": PATH_DEPTH}) if args.path else ("mis", {})
     ref = jaxrt.render(scenes["power"], ref_estimator, spp=args.ref_spp, seed=12345,
                        progress=False, **ref_params)
@@ -80,6 +117,7 @@ def main(argv=None) -> int:
         jaxrt.render(scenes[sel], e, spp=args.spp, seed=0, progress=False, **p)
     eff = {v[0]: [] for v in variants}
     wall_eff = {v[0]: [] for v in variants}
+    stats = {v[0]: [] for v in variants}
     for k in range(args.rounds):
         order = variants if k % 2 == 0 else variants[::-1]
         for label, sel, e, p in order:
@@ -88,6 +126,7 @@ def main(argv=None) -> int:
             mse = float(np.mean((np.asarray(r.image, np.float64) - ref_image) ** 2)) - ref_mse
             eff[label].append(1 / (mse * cpu))
             wall_eff[label].append(1 / (mse * wall))
+            stats[label].append((mse, cpu, wall))
     load1 = os.getloadavg()
     first = variants[0][0]
     base, base_w = statistics.median(eff[first]), statistics.median(wall_eff[first])
@@ -95,11 +134,14 @@ def main(argv=None) -> int:
           f"load {load0[0]:.2f} -> {load1[0]:.2f}")
     print(f"{args.size}x{args.size * 3 // 4}, {args.spp} spp, {args.rounds} interleaved rounds"
           f"{', diffuse floor' if args.diffuse else ''}\n")
-    print(f"| selection · estimator | efficiency per CPU-s (× {first}) | per wall s |")
-    print("|---|---|---|")
+    print(f"| selection · estimator | efficiency per CPU-s (× {first}) | per wall s "
+          "| MSE | CPU-s | wall s |")
+    print("|---|---|---|---|---|---|")
     for label, *_ in variants:
+        m, c, w = (statistics.median(x) for x in zip(*stats[label], strict=True))
         print(f"| {label} | {statistics.median(eff[label]) / base:.2f} | "
-              f"{statistics.median(wall_eff[label]) / base_w:.2f} |")
+              f"{statistics.median(wall_eff[label]) / base_w:.2f} | {m:.3g} | {c:.3f} | "
+              f"{w:.3f} |")
     return 0
 
 

@@ -4,7 +4,8 @@ Power selection draws light ``i`` with a pmf that ignores where the shading poin
 room of a thousand lamps most shadow rays go to lamps that are far away or face elsewhere.
 The light BVH (in the manner of pbrt-v4's ``BVHLightSampler``; Conty Estevez & Kulla 2018)
 groups the lights with a position (point, spot, triangle, sphere) into a tree (up to
-:data:`BRANCHING` children per node) whose nodes bound their lights' positions (a box),
+:data:`BRANCHING` children per node, split by the surface area orientation heuristic, SAOH)
+whose nodes bound their lights' positions (a box),
 emitted power ``Φ`` and emission directions (a cone of normals ``(w, θ_o)`` widened by the
 spread ``θ_e`` of each light's emission).
 
@@ -62,14 +63,13 @@ MIN_COS = 1e-3
 #: Angular slack (radians) added to ``θ_e`` in the importance's cut-off, for the same reason.
 ANGLE_SLACK = 1e-4
 
-#: Children per node: each choice of the descent is among up to 16 nodes (four rounds of
-#: median splits), so the first choices are made between parts of the scene small enough
-#: for their importance to tell them apart; a binary tree makes those choices between
-#: halves whose bounding spheres contain the shading point, by power alone. Measured on
-#: ``lamp_grid(glossy=False)``, light sampling at 64 spp, MSE: power selection 0.00205;
-#: trees of 2 / 8 / 16 / 64 children 0.00058 / 0.00036 / 0.00028 / 0.00025; the importance
-#: of every light evaluated one by one 0.00012. 16 children cost 48 importances per choice
-#: of one of 1 152 lights (3 levels) and were the most efficient (1/(MSE·CPU-s) 1.25× 8's).
+#: Children per node (the default of :func:`build_light_bvh`'s ``branch_bits``): each choice
+#: of the descent is among up to 16 nodes (four rounds of binary splits), so the first
+#: choices are made between parts of the scene small enough for their importance to tell
+#: them apart; a binary tree makes those choices between halves whose bounding spheres
+#: contain the shading point, by power alone. On ``lamp_grid``, paired with 8 children, 16
+#: are as efficient (0.93–1.04×) at 9 % lower MSE (benchmarks/README.md#light-bvh). The
+#: kernels read the branching off ``LightBVH.child``'s (static) shape.
 BRANCHING = 16
 BRANCH_BITS = 4  # log2(BRANCHING): the trail's digits
 
@@ -159,72 +159,215 @@ def union(a: Bounds, b: Bounds) -> Bounds:
                   max(a.theta_e, b.theta_e))
 
 
-def light_bounds(lights, powers: np.ndarray) -> list[Bounds | None]:
-    """Bounds of every light in global-index order (``None`` for directional and environment
-    lights); ``powers`` (N,) already carries the selection floor."""
-    out: list[Bounds | None] = []
+class LightSet(NamedTuple):
+    """Host bounds of the lights in the tree (float64, one row per light): boxes ``lo``/``hi``
+    (M, 3), powers (M,), normal cones ``axis`` (M, 3) / ``theta_o`` (M,), emission spreads
+    ``theta_e`` (M,)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    power: np.ndarray
+    axis: np.ndarray
+    theta_o: np.ndarray
+    theta_e: np.ndarray
+
+    def take(self, ids: np.ndarray) -> LightSet:
+        return LightSet(*(a[ids] for a in self))
+
+
+def light_bounds(lights, powers: np.ndarray) -> tuple[LightSet, np.ndarray]:
+    """Bounds of the lights with a position and their global indices (M,), in global-index
+    order (directional and environment lights are left out); ``powers`` (N,) already carries
+    the selection floor."""
+    lo, hi, axis, t_o, t_e = [], [], [], [], []
     up = np.array([0.0, 0.0, 1.0])
     half = np.pi / 2
+    keep = []
     for kind in ("point", "spot", "directional", "triangle", "sphere", "environment"):
         t = lights.table(kind)
         if t is None:
             continue
         if kind in ("directional", "environment"):
-            out.extend([None] * (1 if kind == "environment" else len(t.direction)))
+            keep.append(np.zeros(1 if kind == "environment" else len(t.direction), bool))
             continue
-        if kind == "point":
-            for q in np.asarray(t.position, np.float64):
-                out.append(Bounds(q, q, 0.0, up, np.pi, half))
-        elif kind == "spot":
-            for q, w, co in zip(np.asarray(t.position, np.float64), np.asarray(t.axis, np.float64),
-                                np.asarray(t.cos_outer, np.float64), strict=True):
-                out.append(Bounds(q, q, 0.0, w / np.linalg.norm(w), 0.0,
-                                  float(np.arccos(np.clip(co, -1, 1)))))
+        if kind in ("point", "spot"):
+            q = np.asarray(t.position, np.float64).reshape(-1, 3)
+            lo.append(q)
+            hi.append(q)
+            if kind == "point":
+                axis.append(np.broadcast_to(up, q.shape))
+                t_o.append(np.full(len(q), np.pi))
+                t_e.append(np.full(len(q), half))
+            else:
+                w = np.asarray(t.axis, np.float64).reshape(-1, 3)
+                axis.append(w / np.linalg.norm(w, axis=1, keepdims=True))
+                t_o.append(np.zeros(len(q)))
+                t_e.append(np.arccos(np.clip(np.asarray(t.cos_outer, np.float64).ravel(), -1, 1)))
         elif kind == "triangle":
-            v = np.asarray(t.vertices, np.float64)
+            v = np.asarray(t.vertices, np.float64).reshape(-1, 3, 3)
             n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
-            n /= np.linalg.norm(n, axis=1, keepdims=True)
-            for vi, ni, two in zip(v, n, np.asarray(t.two_sided), strict=True):
-                # a two-sided triangle emits around ±n: a cone of half-angle π about n
-                out.append(Bounds(vi.min(0), vi.max(0), 0.0, ni, np.pi if two else 0.0, half))
+            axis.append(n / np.linalg.norm(n, axis=1, keepdims=True))
+            lo.append(v.min(1))
+            hi.append(v.max(1))
+            # a two-sided triangle emits around ±n: a cone of half-angle π about n
+            t_o.append(np.where(np.asarray(t.two_sided).ravel(), np.pi, 0.0))
+            t_e.append(np.full(len(v), half))
         else:
-            for c, r in zip(np.asarray(t.center, np.float64), np.asarray(t.radius, np.float64),
-                            strict=True):
-                out.append(Bounds(c - r, c + r, 0.0, up, np.pi, half))
-    return [None if b is None else b._replace(power=float(p))
-            for b, p in zip(out, powers, strict=True)]
+            c = np.asarray(t.center, np.float64).reshape(-1, 3)
+            r = np.asarray(t.radius, np.float64).reshape(-1, 1)
+            lo.append(c - r)
+            hi.append(c + r)
+            axis.append(np.broadcast_to(up, c.shape))
+            t_o.append(np.full(len(c), np.pi))
+            t_e.append(np.full(len(c), half))
+        keep.append(np.ones(len(lo[-1]), bool))
+    ids = np.flatnonzero(np.concatenate(keep))
+    if not lo:
+        e = np.zeros((0, 3))
+        return LightSet(e, e, np.zeros(0), e, np.zeros(0), np.zeros(0)), ids
+    return LightSet(np.concatenate(lo), np.concatenate(hi), np.asarray(powers, np.float64)[ids],
+                    np.concatenate(axis), np.concatenate(t_o), np.concatenate(t_e)), ids
 
 
-def _median_split(bounds: list[Bounds], ids: np.ndarray) -> list[np.ndarray]:
+def _cone(axis: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, float]:
+    """A cone ``(w, θ)`` holding the cones ``(axis[i], theta[i])``: ``w`` their mean axis and
+    ``θ`` the widest of ``∠(w, axis[i]) + theta[i]`` (π when the axes cancel)."""
+    w = axis.sum(0)
+    nw = np.linalg.norm(w)
+    if nw < 1e-9 * len(axis) or theta.max() >= np.pi:
+        return axis[0], np.pi
+    w = w / nw
+    t = float(np.max(np.arccos(np.clip(axis @ w, -1.0, 1.0)) + theta))
+    return w, min(t, np.pi)
+
+
+def set_bounds(s: LightSet) -> Bounds:
+    """The bounds of a set of lights together."""
+    w, t_o = _cone(s.axis, s.theta_o)
+    return Bounds(s.lo.min(0), s.hi.max(0), float(s.power.sum()), w, t_o, float(s.theta_e.max()))
+
+
+def orientation_measure(theta_o, theta_e):
+    """``M_Ω``: the solid angle of emission a cone ``θ_o`` of normals with spread ``θ_e``
+    covers, each direction weighted by the cosine to its nearest normal (array-wise)."""
+    theta_w = np.minimum(theta_o + theta_e, np.pi)
+    so, co = np.sin(theta_o), np.cos(theta_o)
+    return (2 * np.pi * (1 - co) + 0.5 * np.pi * (2 * theta_w * so - np.cos(theta_o - 2 * theta_w)
+                                                  - 2 * theta_o * so + co))
+
+
+#: Buckets per axis of a SAOH split.
+SAOH_BUCKETS = 12
+
+
+def _median_split(s: LightSet, ids: np.ndarray, cap: float = np.inf) -> list[np.ndarray]:
     """``ids`` in two halves at the median of the centroids along their largest extent."""
-    cent = np.array([0.5 * (bounds[i].lo + bounds[i].hi) for i in ids])
+    cent = 0.5 * (s.lo[ids] + s.hi[ids])
     ax = int(np.argmax(cent.max(0) - cent.min(0)))
     order = ids[np.argsort(cent[:, ax], kind="stable")]
     return [order[: len(order) // 2], order[len(order) // 2:]]
 
 
-def _build(bounds: list[Bounds], ids: np.ndarray, nodes: list, trails: dict, trail: int,
-           depth: int) -> int:
-    """Append the subtree over lights ``ids`` to ``nodes`` (pre-order); return its index.
+def _prefix_cones(axis, theta, bucket, nb):
+    """Cones of the lights in buckets ``≤ s`` (s = 0 … nb−2): axes (nb−1, 3), angles (nb−1,)."""
+    sums = np.stack([np.bincount(bucket, axis[:, k], nb) for k in range(3)], 1)
+    w = np.cumsum(sums, 0)[:-1]
+    nw = np.linalg.norm(w, axis=1, keepdims=True)
+    w = w / np.maximum(nw, 1e-300)
+    ang = np.arccos(np.clip(axis @ w.T, -1.0, 1.0)) + theta[:, None]  # (n, nb−1)
+    inside = bucket[:, None] <= np.arange(nb - 1)[None, :]
+    t = np.where(inside, ang, -np.inf).max(0)
+    t = np.where((nw[:, 0] < 1e-9 * len(axis)) | (t >= np.pi), np.pi, t)
+    return np.minimum(t, np.pi)
 
-    A node's lights go to up to :data:`BRANCHING` children by ``log2(BRANCHING)`` rounds of
-    median splits (:func:`_median_split`)."""
+
+def _saoh_split(s: LightSet, ids: np.ndarray, cap: float = np.inf) -> list[np.ndarray]:
+    """``ids`` in two by the surface area orientation heuristic: of the planes between
+    :data:`SAOH_BUCKETS` buckets of the centroids along each axis, the one that minimises
+    ``Σ_side Φ · area(box) · M_Ω(cone)`` (times the parent box's longest extent over its extent
+    along the axis, against thin slabs), among the planes that leave at most ``cap`` lights on
+    either side; the median split if no plane separates them so."""
+    lo, hi = s.lo[ids], s.hi[ids]
+    cent = 0.5 * (lo + hi)
+    cmin, cmax = cent.min(0), cent.max(0)
+    diag = hi.max(0) - lo.min(0)
+    power, axis, t_o, t_e = s.power[ids], s.axis[ids], s.theta_o[ids], s.theta_e[ids]
+    nb = SAOH_BUCKETS
+    best = (np.inf, None)
+    for ax in range(3):
+        ext = cmax[ax] - cmin[ax]
+        if not ext > 0:
+            continue
+        b = np.minimum((nb * (cent[:, ax] - cmin[ax]) / ext).astype(np.int64), nb - 1)
+        blo = np.full((nb, 3), np.inf)
+        bhi = np.full((nb, 3), -np.inf)
+        np.minimum.at(blo, b, lo)
+        np.maximum.at(bhi, b, hi)
+        bte = np.full(nb, -np.inf)
+        np.maximum.at(bte, b, t_e)
+        bp = np.bincount(b, power, nb)
+        costs, counts = [], []
+        for side, bb in ((0, b), (1, nb - 1 - b)):  # left: buckets ≤ s; right: mirrored
+            order = slice(None) if side == 0 else slice(None, None, -1)
+            box_lo = np.minimum.accumulate(blo[order], 0)[:-1]
+            box_hi = np.maximum.accumulate(bhi[order], 0)[:-1]
+            d = np.maximum(box_hi - box_lo, 0.0)
+            area = 2 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
+            phi = np.cumsum(bp[order])[:-1]
+            te = np.maximum.accumulate(bte[order])[:-1]
+            to = _prefix_cones(axis, t_o, bb, nb)
+            cost = phi * area * orientation_measure(to, np.maximum(te, 0.0))
+            count = np.cumsum(np.bincount(bb, minlength=nb))[:-1]
+            cost = np.where(count > 0, cost, np.inf)
+            costs.append(cost if side == 0 else cost[::-1])
+            counts.append(count if side == 0 else count[::-1])
+        cost = (costs[0] + costs[1]) * (diag.max() / diag[ax])
+        cost = np.where((counts[0] <= cap) & (counts[1] <= cap), cost, np.inf)
+        k = int(np.argmin(cost))
+        if cost[k] < best[0]:
+            best = (cost[k], (ax, k, b))
+    if best[1] is None or not np.isfinite(best[0]):
+        return _median_split(s, ids)
+    ax, k, b = best[1]
+    return [ids[b <= k], ids[b > k]]
+
+
+#: ``split`` of :func:`build_light_bvh`: (binary split, whether the tree keeps the depth of
+#: median splits)
+SPLITS = {"median": (_median_split, True), "saoh": (_saoh_split, True),
+          "saoh-free": (_saoh_split, False)}
+
+
+def _build(s: LightSet, ids: np.ndarray, nodes: list, trails: dict, trail: int, depth: int,
+           bits: int, split, max_depth: int, budget: int | None) -> int:
+    """Append the subtree over lights ``ids`` (rows of ``s``) to ``nodes`` (pre-order); return
+    its index.
+
+    A node's lights go to up to ``2**bits`` children by ``bits`` rounds of binary splits
+    (``split``). With a ``budget`` (levels), no split leaves more lights on a side than the
+    levels below can hold, so that the tree is as deep as one of median splits; without, median
+    splits take over where the tree would otherwise outgrow ``max_depth`` levels."""
     me = len(nodes)
     nodes.append(None)
     if len(ids) == 1:
-        nodes[me] = (bounds[ids[0]], (-1,) * BRANCHING, int(ids[0]))
+        nodes[me] = (s.take(ids), -1, int(ids[0]))
         trails[int(ids[0])] = (trail, depth)
         return me
+    branching = 1 << bits
+    cut = split
+    if budget is None:
+        # an unbalanced split keeps up to n − 1 lights on a side: only with a level to spare
+        levels = int(np.ceil(np.log(len(ids)) / np.log(branching) - 1e-9))
+        cut = split if levels < max_depth - depth else _median_split
+    below = np.inf if budget is None else float(branching) ** (budget - depth - 1)
     groups = [ids]
-    while len(groups) < BRANCHING and any(len(g) > 1 for g in groups):
-        groups = [h for g in groups for h in (_median_split(bounds, g) if len(g) > 1 else [g])]
-    shift = BRANCH_BITS * depth
-    kids = [_build(bounds, g, nodes, trails, trail | (k << shift), depth + 1)
-            for k, g in enumerate(groups)]
-    box = nodes[kids[0]][0]
-    for k in kids[1:]:
-        box = union(box, nodes[k][0])
-    nodes[me] = (box, tuple(kids) + (-1,) * (BRANCHING - len(kids)), -1)
+    for r in range(bits):
+        cap = below * (1 << (bits - r - 1))  # what each side's subtree can hold
+        groups = [h for g in groups for h in (cut(s, g, cap) if len(g) > 1 else [g])]
+    shift = bits * depth
+    kids = [_build(s, g, nodes, trails, trail | (k << shift), depth + 1, bits, split, max_depth,
+                   budget) for k, g in enumerate(groups)]
+    nodes[me] = (s.take(ids), tuple(kids), -1)
     return me
 
 
@@ -237,41 +380,58 @@ def _row(b: Bounds) -> np.ndarray:
                             np.sin(b.theta_o), cos_e]])
 
 
-def build_light_bvh(lights, powers: np.ndarray, floor: float) -> tuple[LightBVH, int]:
+def build_light_bvh(lights, powers: np.ndarray, floor: float, *, branch_bits: int = BRANCH_BITS,
+                    split: str = "saoh") -> tuple[LightBVH, int]:
     """The :class:`LightBVH` of a light table and its depth (static: the descent's length).
 
     ``powers`` (N,): each light's power (:func:`.table.light_powers`); every light's weight
-    is its power plus ``floor`` times the mean power (all equal if every power is 0)."""
+    is its power plus ``floor`` times the mean power (all equal if every power is 0).
+    ``branch_bits``: log2 of the children per node; ``split``: ``"saoh"`` (SAOH splits within
+    the depth of median splits), ``"median"`` or ``"saoh-free"`` (SAOH splits, any depth)."""
     powers = np.asarray(powers, np.float64)
     weights = powers + floor * powers.mean() if powers.sum() > 0 else np.ones_like(powers)
-    bounds = light_bounds(lights, weights)
-    n = len(bounds)
-    in_tree = np.array([b is not None for b in bounds])
-    ids = np.flatnonzero(in_tree)
+    s, tree_ids = light_bounds(lights, weights)
+    n = len(weights)
+    branching = 1 << branch_bits
+    max_depth = 31 // branch_bits  # the trail's digits fit an int32
+    in_tree = np.zeros(n, bool)
+    in_tree[tree_ids] = True
     nodes: list = []
     trails: dict = {}
-    if ids.size > 1 << 28:  # 7 levels of 4-bit digits: the trail fits an int32
-        raise ValueError(f"a light BVH holds at most 2^28 lights, got {ids.size}")
-    if ids.size:
-        _build(bounds, ids, nodes, trails, 0, 0)
+    if tree_ids.size > branching ** max_depth:
+        raise ValueError(f"a light BVH of {branching} children holds at most "
+                         f"{branching ** max_depth} lights, got {tree_ids.size}")
+    if tree_ids.size:
+        cut, keep_depth = SPLITS[split]
+        # the depth of median splits: the fewest levels of `branching` children for the lights
+        budget = (max(1, int(np.ceil(np.log(tree_ids.size) / np.log(branching) - 1e-9)))
+                  if keep_depth else None)
+        _build(s, np.arange(tree_ids.size), nodes, trails, 0, 0, branch_bits, cut, max_depth,
+               budget)
+        rows = np.array([_row(set_bounds(nd[0])) for nd in nodes])
     else:  # no light with a position: one inert node keeps the arrays well formed
-        nodes.append((Bounds(np.zeros(3), np.zeros(3), 0.0, np.array([0.0, 0, 1]), 0.0, 0.0),
-                      (-1,) * BRANCHING, -1))
+        nodes.append((None, -1, -1))
+        rows = _row(Bounds(np.zeros(3), np.zeros(3), 0.0, np.array([0.0, 0, 1]), 0.0, 0.0))[None]
+    child = np.full((len(nodes), branching), -1, np.int32)
+    leaf = np.full(len(nodes), -1, np.int32)
+    for k, (_, kids, lf) in enumerate(nodes):
+        if kids != -1:
+            child[k, :len(kids)] = kids
+        leaf[k] = tree_ids[lf] if lf >= 0 else -1
     outside = np.flatnonzero(~in_tree)
-    group_w = np.concatenate([[weights[in_tree].sum()] if ids.size else [0.0],
+    group_w = np.concatenate([[weights[in_tree].sum()] if tree_ids.size else [0.0],
                               weights[outside]])
     group = np.zeros(n, np.int32)
     group[outside] = 1 + np.arange(outside.size)
     trail = np.zeros(n, np.int64)
     depth = np.full(n, -1, np.int32)
     for i, (t, d) in trails.items():
-        trail[i], depth[i] = t, d
-    rows = np.array([_row(nd[0]) for nd in nodes])
+        trail[tree_ids[i]], depth[tree_ids[i]] = t, d
     bvh = LightBVH(
         groups=discrete_from_weights(group_w),
         node=device_array(rows, jnp.result_type(float)),
-        child=device_array(np.array([nd[1] for nd in nodes], np.int32)),
-        leaf_light=device_array(np.array([nd[2] for nd in nodes], np.int32)),
+        child=device_array(child),
+        leaf_light=device_array(leaf),
         trail=device_array(trail.astype(np.int32)),
         depth=device_array(depth),
         group=device_array(group),
@@ -327,7 +487,7 @@ def _children(bvh: LightBVH, node: Array, p: Array, n: Array | None) -> tuple[Ar
     """The importances (BRANCHING,) of ``node``'s children (0 for absent ones) and their sum."""
     child = bvh.child[node]
     rows = bvh.node[jnp.clip(child, 0, None)]  # (BRANCHING, NODE_WIDTH): one gather
-    imp = jnp.stack([importance(rows[k], p, n) for k in range(BRANCHING)])
+    imp = jnp.stack([importance(rows[k], p, n) for k in range(child.shape[0])])
     imp = jnp.where(child >= 0, imp, 0.0)
     return imp, jnp.sum(imp)
 
@@ -350,7 +510,7 @@ def tree_select(bvh: LightBVH, depth: int, p: Array, n: Array | None,
         cum = jnp.cumsum(imp)
         target = u * total
         # the last child with I > 0 takes what round-off leaves past the cumulative sum
-        last = BRANCHING - 1 - jnp.argmax((imp > 0)[::-1]).astype(jnp.int32)
+        last = bvh.child.shape[1] - 1 - jnp.argmax((imp > 0)[::-1]).astype(jnp.int32)
         k = jnp.minimum(jnp.sum((cum <= target).astype(jnp.int32)), last)
         below = cum[k] - imp[k]
         u_next = jnp.clip((target - below) / jnp.where(imp[k] > 0, imp[k], 1.0), 0.0, one_minus)
@@ -371,7 +531,8 @@ def tree_pmf(bvh: LightBVH, depth: int, p: Array, n: Array | None, light: Array)
     def step(level, carry):
         node, pmf = carry
         imp, total = _children(bvh, node, p, n)
-        k = (trail >> (BRANCH_BITS * level)) & (BRANCHING - 1)
+        branching = bvh.child.shape[1]  # static: 2 ** bits
+        k = (trail >> (branching.bit_length() - 1) * level) & (branching - 1)
         prob = jnp.where(total > 0, imp[k] / jnp.where(total > 0, total, 1.0), 0.0)
         on_path = level < length
         return (jnp.where(on_path, bvh.child[node, k], node),
