@@ -68,7 +68,8 @@ ANGLE_SLACK = 1e-4
 #: choices are made between parts of the scene small enough for their importance to tell
 #: them apart; a binary tree makes those choices between halves whose bounding spheres
 #: contain the shading point, by power alone. On ``lamp_grid``, paired with 8 children, 16
-#: are as efficient (0.93–1.04×) at 9 % lower MSE (benchmarks/README.md#light-bvh). The
+#: are 1.29× as efficient with median splits and 1.04× with SAOH splits (diffuse floor;
+#: glossy 0.93–1.04×; benchmarks/README.md#light-bvh). The
 #: kernels read the branching off ``LightBVH.child``'s (static) shape.
 BRANCHING = 16
 BRANCH_BITS = 4  # log2(BRANCHING): the trail's digits
