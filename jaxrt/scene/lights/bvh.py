@@ -132,7 +132,8 @@ def _angle(a: np.ndarray, b: np.ndarray) -> float:
 
 def cone_union(w_a, t_a, w_b, t_b) -> tuple[np.ndarray, float]:
     """The smallest cone ``(w, θ)`` of the two's union: the directions within ``t_a`` of
-    ``w_a`` or within ``t_b`` of ``w_b`` are within ``θ`` of ``w``."""
+    ``w_a`` or within ``t_b`` of ``w_b`` are within ``θ`` of ``w``. (The build bounds a set's
+    normals at once instead: their mean axis and widest offset, :func:`_segment_rows`.)"""
     if t_a >= np.pi or t_b >= np.pi:
         return w_a, np.pi
     d = _angle(w_a, w_b)
@@ -230,24 +231,6 @@ def light_bounds(lights, powers: np.ndarray) -> tuple[LightSet, np.ndarray]:
                     np.concatenate(axis), np.concatenate(t_o), np.concatenate(t_e)), ids
 
 
-def _cone(axis: np.ndarray, theta: np.ndarray) -> tuple[np.ndarray, float]:
-    """A cone ``(w, θ)`` holding the cones ``(axis[i], theta[i])``: ``w`` their mean axis and
-    ``θ`` the widest of ``∠(w, axis[i]) + theta[i]`` (π when the axes cancel)."""
-    w = axis.sum(0)
-    nw = np.linalg.norm(w)
-    if nw < 1e-9 * len(axis) or theta.max() >= np.pi:
-        return axis[0], np.pi
-    w = w / nw
-    t = float(np.max(np.arccos(np.clip(axis @ w, -1.0, 1.0)) + theta))
-    return w, min(t, np.pi)
-
-
-def set_bounds(s: LightSet) -> Bounds:
-    """The bounds of a set of lights together."""
-    w, t_o = _cone(s.axis, s.theta_o)
-    return Bounds(s.lo.min(0), s.hi.max(0), float(s.power.sum()), w, t_o, float(s.theta_e.max()))
-
-
 def orientation_measure(theta_o, theta_e):
     """``M_Ω``: the solid angle of emission a cone ``θ_o`` of normals with spread ``θ_e``
     covers, each direction weighted by the cosine to its nearest normal (array-wise)."""
@@ -261,115 +244,186 @@ def orientation_measure(theta_o, theta_e):
 SAOH_BUCKETS = 12
 
 
-def _median_split(s: LightSet, ids: np.ndarray, cap: float = np.inf) -> list[np.ndarray]:
-    """``ids`` in two halves at the median of the centroids along their largest extent."""
-    cent = 0.5 * (s.lo[ids] + s.hi[ids])
-    ax = int(np.argmax(cent.max(0) - cent.min(0)))
-    order = ids[np.argsort(cent[:, ax], kind="stable")]
-    return [order[: len(order) // 2], order[len(order) // 2:]]
+def _segments(seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Starts and sizes of the runs of a non-decreasing label array."""
+    start = np.flatnonzero(np.r_[True, seg[1:] != seg[:-1]])
+    return start, np.diff(np.r_[start, len(seg)])
 
 
-def _prefix_cones(axis, theta, bucket, nb):
-    """Cones of the lights in buckets ``≤ s`` (s = 0 … nb−2): axes (nb−1, 3), angles (nb−1,)."""
-    sums = np.stack([np.bincount(bucket, axis[:, k], nb) for k in range(3)], 1)
-    w = np.cumsum(sums, 0)[:-1]
-    nw = np.linalg.norm(w, axis=1, keepdims=True)
-    w = w / np.maximum(nw, 1e-300)
-    ang = np.arccos(np.clip(axis @ w.T, -1.0, 1.0)) + theta[:, None]  # (n, nb−1)
-    inside = bucket[:, None] <= np.arange(nb - 1)[None, :]
-    t = np.where(inside, ang, -np.inf).max(0)
-    t = np.where((nw[:, 0] < 1e-9 * len(axis)) | (t >= np.pi), np.pi, t)
-    return np.minimum(t, np.pi)
+def _median_sides(s: LightSet, seg: np.ndarray, start, size) -> np.ndarray:
+    """Each light's side (0/1) when every segment splits in halves at the median of its
+    centroids along their largest extent."""
+    cent = 0.5 * (s.lo + s.hi)
+    ext = np.maximum.reduceat(cent, start) - np.minimum.reduceat(cent, start)
+    ax = np.argmax(ext, 1)
+    order = np.lexsort((cent[np.arange(len(seg)), ax[seg]], seg))
+    rank = np.empty(len(seg), np.int64)
+    rank[order] = np.arange(len(seg))
+    return (rank - start[seg] >= size[seg] // 2).astype(np.int64)
 
 
-def _saoh_split(s: LightSet, ids: np.ndarray, cap: float = np.inf) -> list[np.ndarray]:
-    """``ids`` in two by the surface area orientation heuristic: of the planes between
-    :data:`SAOH_BUCKETS` buckets of the centroids along each axis, the one that minimises
-    ``Σ_side Φ · area(box) · M_Ω(cone)`` (times the parent box's longest extent over its extent
-    along the axis, against thin slabs), among the planes that leave at most ``cap`` lights on
-    either side; the median split if no plane separates them so."""
-    lo, hi = s.lo[ids], s.hi[ids]
-    cent = 0.5 * (lo + hi)
-    cmin, cmax = cent.min(0), cent.max(0)
-    diag = hi.max(0) - lo.min(0)
-    power, axis, t_o, t_e = s.power[ids], s.axis[ids], s.theta_o[ids], s.theta_e[ids]
-    nb = SAOH_BUCKETS
-    best = (np.inf, None)
+def _side_costs(s: LightSet, seg, b, nseg, nb):
+    """SAOH cost (S, nb−1) of the lights in buckets ``≤ k`` of each segment, and their count."""
+    key = seg * nb + b
+    blo = np.full((nseg * nb, 3), np.inf)
+    bhi = np.full((nseg * nb, 3), -np.inf)
+    np.minimum.at(blo, key, s.lo)
+    np.maximum.at(bhi, key, s.hi)
+    bte = np.full(nseg * nb, -np.inf)
+    np.maximum.at(bte, key, s.theta_e)
+    box_lo = np.minimum.accumulate(blo.reshape(nseg, nb, 3), 1)[:, :-1]
+    box_hi = np.maximum.accumulate(bhi.reshape(nseg, nb, 3), 1)[:, :-1]
+    d = np.maximum(box_hi - box_lo, 0.0)
+    area = 2 * (d[..., 0] * d[..., 1] + d[..., 1] * d[..., 2] + d[..., 2] * d[..., 0])
+    phi = np.cumsum(np.bincount(key, s.power, nseg * nb).reshape(nseg, nb), 1)[:, :-1]
+    count = np.cumsum(np.bincount(key, minlength=nseg * nb).reshape(nseg, nb), 1)[:, :-1]
+    te = np.maximum.accumulate(bte.reshape(nseg, nb), 1)[:, :-1]
+    sums = np.stack([np.bincount(key, s.axis[:, k], nseg * nb) for k in range(3)], 1)
+    w = np.cumsum(sums.reshape(nseg, nb, 3), 1)[:, :-1]  # (S, nb−1, 3)
+    nw = np.linalg.norm(w, axis=2)
+    w = w / np.maximum(nw, 1e-300)[..., None]
+    ang = np.arccos(np.clip(np.einsum("nk,nsk->ns", s.axis, w[seg]), -1.0, 1.0))
+    ang = np.where(b[:, None] <= np.arange(nb - 1), ang + s.theta_o[:, None], -np.inf)
+    start, size = _segments(seg)
+    t = np.maximum.reduceat(ang, start)
+    t = np.where((nw < 1e-9 * size[:, None]) | (t >= np.pi), np.pi, np.minimum(t, np.pi))
+    cost = phi * area * orientation_measure(t, np.maximum(te, 0.0))
+    return np.where(count > 0, cost, np.inf), count
+
+
+def _saoh_sides(s: LightSet, seg: np.ndarray, start, size, cap) -> np.ndarray:
+    """Each light's side when every segment splits by the surface area orientation heuristic:
+    of the planes between :data:`SAOH_BUCKETS` buckets of its centroids along each axis, the
+    one that minimises ``Σ_side Φ · area(box) · M_Ω(cone)`` (times the box's longest extent
+    over its extent along the axis, against thin slabs), among those that leave at most
+    ``cap`` (per segment) lights on either side; median halves where no plane does."""
+    nseg, nb = len(start), SAOH_BUCKETS
+    cent = 0.5 * (s.lo + s.hi)
+    cmin, cmax = np.minimum.reduceat(cent, start), np.maximum.reduceat(cent, start)
+    diag = np.maximum.reduceat(s.hi, start) - np.minimum.reduceat(s.lo, start)
+    costs, buckets = [], []
     for ax in range(3):
-        ext = cmax[ax] - cmin[ax]
-        if not ext > 0:
-            continue
-        b = np.minimum((nb * (cent[:, ax] - cmin[ax]) / ext).astype(np.int64), nb - 1)
-        blo = np.full((nb, 3), np.inf)
-        bhi = np.full((nb, 3), -np.inf)
-        np.minimum.at(blo, b, lo)
-        np.maximum.at(bhi, b, hi)
-        bte = np.full(nb, -np.inf)
-        np.maximum.at(bte, b, t_e)
-        bp = np.bincount(b, power, nb)
-        costs, counts = [], []
-        for side, bb in ((0, b), (1, nb - 1 - b)):  # left: buckets ≤ s; right: mirrored
-            order = slice(None) if side == 0 else slice(None, None, -1)
-            box_lo = np.minimum.accumulate(blo[order], 0)[:-1]
-            box_hi = np.maximum.accumulate(bhi[order], 0)[:-1]
-            d = np.maximum(box_hi - box_lo, 0.0)
-            area = 2 * (d[:, 0] * d[:, 1] + d[:, 1] * d[:, 2] + d[:, 2] * d[:, 0])
-            phi = np.cumsum(bp[order])[:-1]
-            te = np.maximum.accumulate(bte[order])[:-1]
-            to = _prefix_cones(axis, t_o, bb, nb)
-            cost = phi * area * orientation_measure(to, np.maximum(te, 0.0))
-            count = np.cumsum(np.bincount(bb, minlength=nb))[:-1]
-            cost = np.where(count > 0, cost, np.inf)
-            costs.append(cost if side == 0 else cost[::-1])
-            counts.append(count if side == 0 else count[::-1])
-        cost = (costs[0] + costs[1]) * (diag.max() / diag[ax])
-        cost = np.where((counts[0] <= cap) & (counts[1] <= cap), cost, np.inf)
-        k = int(np.argmin(cost))
-        if cost[k] < best[0]:
-            best = (cost[k], (ax, k, b))
-    if best[1] is None or not np.isfinite(best[0]):
-        return _median_split(s, ids)
-    ax, k, b = best[1]
-    return [ids[b <= k], ids[b > k]]
+        ext = (cmax - cmin)[:, ax]
+        pos = (cent[:, ax] - cmin[seg, ax]) / np.where(ext > 0, ext, 1.0)[seg]
+        b = np.minimum((nb * pos).astype(np.int64), nb - 1)
+        left, n_left = _side_costs(s, seg, b, nseg, nb)
+        right, n_right = _side_costs(s, seg, nb - 1 - b, nseg, nb)
+        thin = np.where(ext > 0, diag.max(1) / np.maximum(diag[:, ax], 1e-300), 1.0)
+        cost = (left + right[:, ::-1]) * thin[:, None]
+        ok = (ext[:, None] > 0) & (n_left <= cap[:, None]) & (n_right[:, ::-1] <= cap[:, None])
+        costs.append(np.where(ok, cost, np.inf))
+        buckets.append(b)
+    cost = np.stack(costs, 1).reshape(nseg, -1)  # (S, 3 (nb − 1))
+    best = np.argmin(cost, 1)
+    found = np.isfinite(cost[np.arange(nseg), best])
+    ax, k = best // (nb - 1), best % (nb - 1)
+    side = (np.stack(buckets)[ax[seg], np.arange(len(seg))] > k[seg]).astype(np.int64)
+    median = ~found[seg]
+    if median.any():
+        side = np.where(median, _median_sides(s, seg, start, size), side)
+    return side
 
 
-#: ``split`` of :func:`build_light_bvh`: (binary split, whether the tree keeps the depth of
+def _segment_rows(s: LightSet, seg: np.ndarray) -> np.ndarray:
+    """The :attr:`LightBVH.node` rows of the lights of each segment together (S, NODE_WIDTH):
+    the box, the power, a cone of the normals (mean axis, widest offset) and the spread."""
+    start, size = _segments(seg)
+    lo, hi = np.minimum.reduceat(s.lo, start), np.maximum.reduceat(s.hi, start)
+    w = np.add.reduceat(s.axis, start)
+    nw = np.linalg.norm(w, axis=1)
+    w = np.where((nw > 1e-9 * size)[:, None], w / np.maximum(nw, 1e-300)[:, None], s.axis[start])
+    t = np.maximum.reduceat(np.arccos(np.clip(np.sum(s.axis * w[seg], 1), -1, 1)) + s.theta_o,
+                            start)
+    wide = (nw <= 1e-9 * size) | (np.maximum.reduceat(s.theta_o, start) >= np.pi) | (t >= np.pi)
+    t = np.where(wide, np.pi, t)
+    return _rows(LightSet(lo, hi, np.add.reduceat(s.power, start), w, t,
+                          np.maximum.reduceat(s.theta_e, start)))
+
+
+def _rows(s: LightSet) -> np.ndarray:
+    """Rows of :attr:`LightBVH.node` (host float64, (M, NODE_WIDTH)) of bounds ``s``."""
+    e = s.theta_e + ANGLE_SLACK
+    cos_e = np.where(e < np.pi, np.cos(e), -2.0)  # emits every way: no direction is cut
+    return np.concatenate([0.5 * (s.lo + s.hi), s.axis,
+                           np.stack([0.25 * np.sum((s.hi - s.lo) ** 2, 1), s.power,
+                                     np.cos(s.theta_o), np.sin(s.theta_o), cos_e], 1)], 1)
+
+
+#: ``split`` of :func:`build_light_bvh`: (SAOH or median, whether the tree keeps the depth of
 #: median splits)
-SPLITS = {"median": (_median_split, True), "saoh": (_saoh_split, True),
-          "saoh-free": (_saoh_split, False)}
+SPLITS = {"median": ("median", True), "saoh": ("saoh", True), "saoh-free": ("saoh", False)}
 
 
-def _build(s: LightSet, ids: np.ndarray, nodes: list, trails: dict, trail: int, depth: int,
-           bits: int, split, max_depth: int, budget: int | None) -> int:
-    """Append the subtree over lights ``ids`` (rows of ``s``) to ``nodes`` (pre-order); return
-    its index.
+def _build(s: LightSet, bits: int, split: str, max_depth: int, budget: int | None):
+    """The tree over the lights of ``s``, level by level (every node of a level at once, by
+    index arrays): node rows (K, NODE_WIDTH), children (K, 2**bits), each node's light (-1
+    inside), each light's trail and depth.
 
-    A node's lights go to up to ``2**bits`` children by ``bits`` rounds of binary splits
-    (``split``). With a ``budget`` (levels), no split leaves more lights on a side than the
-    levels below can hold, so that the tree is as deep as one of median splits; without, median
-    splits take over where the tree would otherwise outgrow ``max_depth`` levels."""
-    me = len(nodes)
-    nodes.append(None)
-    if len(ids) == 1:
-        nodes[me] = (s.take(ids), -1, int(ids[0]))
-        trails[int(ids[0])] = (trail, depth)
-        return me
-    branching = 1 << bits
-    cut = split
-    if budget is None:
-        # an unbalanced split keeps up to n − 1 lights on a side: only with a level to spare
-        levels = int(np.ceil(np.log(len(ids)) / np.log(branching) - 1e-9))
-        cut = split if levels < max_depth - depth else _median_split
-    below = np.inf if budget is None else float(branching) ** (budget - depth - 1)
-    groups = [ids]
-    for r in range(bits):
-        cap = below * (1 << (bits - r - 1))  # what each side's subtree can hold
-        groups = [h for g in groups for h in (cut(s, g, cap) if len(g) > 1 else [g])]
-    shift = bits * depth
-    kids = [_build(s, g, nodes, trails, trail | (k << shift), depth + 1, bits, split, max_depth,
-                   budget) for k, g in enumerate(groups)]
-    nodes[me] = (s.take(ids), tuple(kids), -1)
-    return me
+    A node's lights go to up to ``2**bits`` children by ``bits`` rounds of binary splits. With
+    a ``budget`` (levels), no split leaves more lights on a side than the levels below can
+    hold, so that the tree is as deep as one of median splits; without, median splits take
+    over in nodes where the tree would otherwise outgrow ``max_depth`` levels."""
+    m, branching = len(s.power), 1 << bits
+    perm = np.arange(m)  # lights in the order of their node
+    seg = np.zeros(m, np.int64)
+    rows, child, leaf = [_segment_rows(s, seg)], [], []
+    trail, depth = np.zeros(m, np.int64), np.zeros(m, np.int32)
+    count, d = 1, 0
+    while True:
+        start, size = _segments(seg)
+        single = size == 1
+        lit = perm[start]
+        leaf.append(np.where(single, lit, -1))
+        kids = np.full((len(start), branching), -1, np.int64)
+        child.append(kids)
+        if single.all():
+            break
+        sub = perm  # the level's lights, in segment order
+        seg_sub = seg.copy()
+        levels = np.ceil(np.log(size) / np.log(branching) - 1e-9)
+        if budget is None:
+            use_saoh = (levels < max_depth - d)[seg]
+            below = np.full(len(seg), np.inf)
+        else:
+            use_saoh = np.ones(len(seg), bool)
+            below = np.full(len(seg), float(branching) ** (budget - d - 1))
+        for r in range(bits):
+            st, sz = _segments(seg_sub)
+            ss = s.take(sub)
+            side = _median_sides(ss, seg_sub, st, sz)
+            # two lights split one each either way: SAOH only weighs segments of 3 or more
+            big = np.flatnonzero(use_saoh & (sz[seg_sub] > 2)) if split == "saoh" else []
+            if len(big):
+                seg_b = np.cumsum(np.r_[0, seg_sub[big][1:] != seg_sub[big][:-1]])
+                st_b, sz_b = _segments(seg_b)
+                cap = (below[big] * (1 << (bits - r - 1)))[st_b]
+                side[big] = _saoh_sides(ss.take(big), seg_b, st_b, sz_b, cap)
+            side = np.where(sz[seg_sub] > 1, side, 0)
+            order = np.lexsort((side, seg_sub))  # stable within each side
+            label = 2 * seg_sub[order] + side[order]
+            sub, use_saoh, below = sub[order], use_saoh[order], below[order]
+            seg_sub = np.cumsum(np.r_[0, label[1:] != label[:-1]])
+        # the children: the sub-segments of each node, in order; a node's segment is `seg`
+        st, _ = _segments(seg_sub)
+        parent = np.searchsorted(start, st, side="right") - 1  # segments keep their order
+        digit = np.arange(len(st)) - np.searchsorted(parent, parent, side="left")
+        inner = ~single[parent]
+        ids = np.full(len(st), -1, np.int64)
+        ids[inner] = count + np.arange(inner.sum())
+        count += int(inner.sum())
+        kids[parent[inner], digit[inner]] = ids[inner]
+        # lights of leaves stay put; the others move to their child's segment
+        lid = sub
+        light_child = np.repeat(np.arange(len(st)), np.diff(np.r_[st, len(sub)]))
+        on = inner[light_child]
+        trail[lid[on]] |= digit[light_child[on]] << (bits * d)
+        depth[lid[on]] = d + 1
+        perm = lid[on]
+        seg = np.cumsum(np.r_[0, light_child[on][1:] != light_child[on][:-1]])
+        rows.append(_segment_rows(s.take(perm), seg))
+        d += 1
+    child = np.concatenate(child)
+    return (np.concatenate(rows), child, np.concatenate(leaf), trail, depth)
 
 
 def _row(b: Bounds) -> np.ndarray:
@@ -397,42 +451,33 @@ def build_light_bvh(lights, powers: np.ndarray, floor: float, *, branch_bits: in
     max_depth = 31 // branch_bits  # the trail's digits fit an int32
     in_tree = np.zeros(n, bool)
     in_tree[tree_ids] = True
-    nodes: list = []
-    trails: dict = {}
     if tree_ids.size > branching ** max_depth:
         raise ValueError(f"a light BVH of {branching} children holds at most "
                          f"{branching ** max_depth} lights, got {tree_ids.size}")
+    trail = np.zeros(n, np.int64)
+    depth = np.full(n, -1, np.int32)
     if tree_ids.size:
         cut, keep_depth = SPLITS[split]
         # the depth of median splits: the fewest levels of `branching` children for the lights
         budget = (max(1, int(np.ceil(np.log(tree_ids.size) / np.log(branching) - 1e-9)))
                   if keep_depth else None)
-        _build(s, np.arange(tree_ids.size), nodes, trails, 0, 0, branch_bits, cut, max_depth,
-               budget)
-        rows = np.array([_row(set_bounds(nd[0])) for nd in nodes])
+        rows, child, leaf, t, d = _build(s, branch_bits, cut, max_depth, budget)
+        leaf = np.where(leaf >= 0, tree_ids[np.maximum(leaf, 0)], -1)
+        trail[tree_ids], depth[tree_ids] = t, d
     else:  # no light with a position: one inert node keeps the arrays well formed
-        nodes.append((None, -1, -1))
         rows = _row(Bounds(np.zeros(3), np.zeros(3), 0.0, np.array([0.0, 0, 1]), 0.0, 0.0))[None]
-    child = np.full((len(nodes), branching), -1, np.int32)
-    leaf = np.full(len(nodes), -1, np.int32)
-    for k, (_, kids, lf) in enumerate(nodes):
-        if kids != -1:
-            child[k, :len(kids)] = kids
-        leaf[k] = tree_ids[lf] if lf >= 0 else -1
+        child = np.full((1, branching), -1)
+        leaf = np.full(1, -1)
     outside = np.flatnonzero(~in_tree)
     group_w = np.concatenate([[weights[in_tree].sum()] if tree_ids.size else [0.0],
                               weights[outside]])
     group = np.zeros(n, np.int32)
     group[outside] = 1 + np.arange(outside.size)
-    trail = np.zeros(n, np.int64)
-    depth = np.full(n, -1, np.int32)
-    for i, (t, d) in trails.items():
-        trail[tree_ids[i]], depth[tree_ids[i]] = t, d
     bvh = LightBVH(
         groups=discrete_from_weights(group_w),
         node=device_array(rows, jnp.result_type(float)),
-        child=device_array(child),
-        leaf_light=device_array(leaf),
+        child=device_array(child.astype(np.int32)),
+        leaf_light=device_array(leaf.astype(np.int32)),
         trail=device_array(trail.astype(np.int32)),
         depth=device_array(depth),
         group=device_array(group),
