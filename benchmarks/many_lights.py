@@ -57,12 +57,12 @@ PATH_VARIANTS = tuple(
 def tree_scene(scene, split="saoh", branch_bits=4):
     """``scene`` (light selection ``bvh``) with its light BVH rebuilt by ``split`` with
     ``2**branch_bits`` children per node."""
-    from jaxrt.scene.lights import bvh
+    from jaxrt.scene.lights import bvh_build
     from jaxrt.scene.lights.table import SELECTION_FLOOR, light_powers
 
     lights = scene.lights
-    tree, depth = bvh.build_light_bvh(lights, light_powers(lights), SELECTION_FLOOR,
-                                      branch_bits=branch_bits, split=split)
+    tree, depth = bvh_build.build_light_bvh(lights, light_powers(lights), SELECTION_FLOOR,
+                                            branch_bits=branch_bits, split=split)
     lights = dataclasses.replace(lights, selection=tree, structure=dataclasses.replace(
         lights.structure, bvh_depth=depth))
     return scene.replace(lights=lights)

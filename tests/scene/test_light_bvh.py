@@ -17,7 +17,7 @@ from jaxrt.scene import lights as lt
 from jaxrt.scene import materials as mt
 from jaxrt.scene.builtin import lamp_grid
 from jaxrt.scene.container import mesh, shading_scene
-from jaxrt.scene.lights import bvh
+from jaxrt.scene.lights import bvh, bvh_build
 from jaxrt.validation import analytic
 from jaxrt.validation.chi2 import pearson_chi2, pool_cells, sidak_significance
 
@@ -133,16 +133,23 @@ unit = st.tuples(*[st.floats(-1, 1)] * 3).filter(lambda v: np.linalg.norm(v) > 0
 
 
 @settings(max_examples=200, deadline=None)
-@given(unit, st.floats(0, np.pi), unit, st.floats(0, np.pi), st.integers(0, 2**31))
-def test_cone_union_contains_both_cones(wa, ta, wb, tb, seed):
-    """Every direction of either cone lies in their union (the law the tree's bounds rest on)."""
-    wa, wb = np.array(wa) / np.linalg.norm(wa), np.array(wb) / np.linalg.norm(wb)
-    w, t = bvh.cone_union(wa, ta, wb, tb)
-    assert abs(np.linalg.norm(w) - 1) < 1e-9 and t <= np.pi
+@given(st.lists(st.tuples(unit, st.floats(0, np.pi)), min_size=1, max_size=6),
+       st.integers(0, 2**31))
+def test_a_nodes_cone_contains_its_lights_cones(cones, seed):
+    """Every direction of a member light's normal cone lies in its node's cone (the law the
+    tree's bounds rest on): the node row's axis and cos θ_o, as the build forms them."""
+    axes = np.array([np.array(w) / np.linalg.norm(w) for w, _ in cones])
+    theta = np.array([t for _, t in cones])
+    k = len(cones)
+    s = bvh_build.LightSet(np.zeros((k, 3)), np.ones((k, 3)), np.ones(k), axes, theta,
+                           np.zeros(k))
+    (row,) = bvh_build._segment_rows(s, np.zeros(k, np.int64))
+    w, cos_o = row[3:6], row[8]
+    assert abs(np.linalg.norm(w) - 1) < 1e-9 and -1 <= cos_o <= 1
     rng = np.random.default_rng(seed)
-    for axis, theta in ((wa, ta), (wb, tb)):
-        d = _cone_directions(axis, theta, rng)
-        assert np.all(np.arccos(np.clip(d @ w, -1, 1)) <= t + 1e-7)
+    for axis, t in zip(axes, theta, strict=True):
+        d = _cone_directions(axis, t, rng)
+        assert np.all(d @ w >= cos_o - 1e-7)
 
 
 @settings(max_examples=60, deadline=None)

@@ -4,7 +4,7 @@ Kinds, one module each: :mod:`.delta` (point, spot, directional), :mod:`.area` (
 triangles, sampled by area or by solid angle), :mod:`.sphere` (spheres, sampled by the cone they
 subtend), :mod:`.environment` (constant or lat-long map). :mod:`.table` gathers them into the
 ``Lights`` pytree (static counts per kind, so absent kinds compile no code), selects a light
-uniformly, by power or by a light BVH (:mod:`.bvh`, a pmf that depends on the
+uniformly, by power or by a light BVH (:mod:`jaxrt.scene.lights.bvh`, a pmf that depends on the
 shading point), and dispatches.
 
 Build on the host, then use inside ``jit``/``vmap``::

@@ -29,7 +29,7 @@ from jax import Array
 
 from jaxrt.core.vecmath import device_array
 from jaxrt.sampling.distributions import discrete_from_weights, discrete_pmf, discrete_sample
-from jaxrt.scene.lights import area, bvh, delta, environment, sphere
+from jaxrt.scene.lights import area, bvh, bvh_build, delta, environment, sphere
 from jaxrt.scene.lights.records import LightSample
 
 KINDS = ("point", "spot", "directional", "triangle", "sphere", "environment")
@@ -161,8 +161,8 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
       selection: ``"uniform"`` (pmf 1/N), ``"power"`` (pmf ∝ luminance power plus
         :data:`SELECTION_FLOOR` times the mean power, so that no light has pmf 0) or ``"bvh"``
         (a light BVH over the lights with a position, whose pmf depends on the shading point:
-        :mod:`.bvh`); static. If every light has zero power, power selection falls back to
-        uniform.
+        :mod:`jaxrt.scene.lights.bvh`); static. If every light has zero power, power
+        selection falls back to uniform.
       scene_radius: radius of the scene's bounding sphere, for the power of directional and
         environment lights.
     """
@@ -196,7 +196,7 @@ def light_table(lights, *, triangle_sampling: str = "area", selection: str = "po
     structure = LightsStructure(counts, env_kind, triangle_sampling, selection)
     draft = Lights(**tables, selection=None, structure=structure)
     if selection == "bvh":
-        tree, depth = bvh.build_light_bvh(draft, light_powers(draft, scene_radius),
+        tree, depth = bvh_build.build_light_bvh(draft, light_powers(draft, scene_radius),
                                           SELECTION_FLOOR)
         return dataclasses.replace(draft, selection=tree,
                                    structure=dataclasses.replace(structure, bvh_depth=depth))
@@ -243,8 +243,9 @@ def sample_li(lights: Lights, p: Array, n: Array, u: Array) -> LightSample:
     Args:
       lights: the light table.
       p: (3,) shading point, world frame.
-      n: (3,) receiver normal: the light BVH weighs lights by it (:mod:`.bvh`); uniform and
-        power selection ignore it. No light is culled for being behind the receiver.
+      n: (3,) receiver normal: the light BVH weighs lights by it
+        (:mod:`jaxrt.scene.lights.bvh`); uniform and power selection ignore it. No light is
+        culled for being behind the receiver.
       u: (3,) uniform variates: ``u[0]`` selects the light, ``u[1:3]`` sample it.
 
     Returns a :class:`LightSample` whose ``pdf`` is the solid-angle density including the
