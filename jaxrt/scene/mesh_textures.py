@@ -39,14 +39,15 @@ from __future__ import annotations
 
 import os
 import warnings
-from typing import TYPE_CHECKING, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from jaxrt.scene.images import FileFormatError
 
-if TYPE_CHECKING:  # meshio imports this module: no import at run time
-    from jaxrt.scene.meshio import MeshData
+#: A :class:`jaxrt.scene.meshio.MeshData` (meshio imports this module, so its type is not
+#: imported here: the layering allows no cycle, not even for type checking).
+MeshData = Any
 
 # image suffixes jaxrt.scene.textures.load_texture reads
 _IMAGE_SUFFIXES = (".png", ".exr")
